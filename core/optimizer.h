@@ -1,0 +1,133 @@
+#ifndef IRRR_CORE_OPTIMIZER_H_
+#define IRRR_CORE_OPTIMIZER_H_
+
+// Sparse nonlinear least squares over a pose graph (paper eq. 3): minimise
+//   D^2(x) = sum over odometry edges and active loop edges of r_ij(x)' Omega_ij r_ij(x)
+// by Gauss-Newton or Levenberg-Marquardt on the normal equations, solved with CHOLMOD.
+//
+// iRRR solves one graph again and again with different subsets of loop edges, so the subset is
+// an argument of Solve, and an Optimizer keeps its symbolic analysis between calls: a solve whose
+// sparsity pattern equals the previous one's reuses the ordering and supernodes.
+//
+// Gauge: each connected component (sessions joined by active loops) has the first pose of its
+// earliest session held fixed; the others move. Fixed poses keep their place in the linear system
+// with an identity block, so the pattern does not depend on which poses are fixed.
+
+#include <string>
+#include <vector>
+
+#include "core/pose_graph.h"
+#include "core/sparse_cholesky.h"
+#include "core/status.h"
+
+namespace irrr {
+
+enum class OptimizerAlgorithm { kGaussNewton, kLevenbergMarquardt };
+
+enum class SparsityPattern {
+  kActiveEdges,  // the normal equations hold the active edges only (least fill)
+  kAllEdges,     // every edge of the graph, inactive ones as explicit zeros: one analysis serves
+                 // every subset of the same graph
+};
+
+struct OptimizerOptions {
+  OptimizerAlgorithm algorithm = OptimizerAlgorithm::kGaussNewton;
+  SparsityPattern pattern = SparsityPattern::kActiveEdges;
+  int max_iterations = 100;
+  // Converged when an accepted step lowers chi2 by less than this fraction of it...
+  double function_tolerance = 1e-9;
+  // ...or moves no coordinate (metres, radians) by more than this.
+  double parameter_tolerance = 1e-9;
+  // Levenberg-Marquardt: initial damping relative to the largest diagonal entry of J'WJ.
+  double initial_damping = 1e-5;
+
+  // Ok, or a sentence naming the first option out of range.
+  Status Validate() const;
+};
+
+enum class TerminationType {
+  kConvergence,    // a tolerance was met
+  kNoConvergence,  // max_iterations reached; the estimate is the last accepted iterate
+  kFailure,        // the linear solver failed or numbers became non-finite; see message
+};
+
+const char* TerminationTypeName(TerminationType type);
+
+struct OptimizerSummary {
+  TerminationType termination = TerminationType::kFailure;
+  std::string message;
+  int iterations = 0;             // linear solves (accepted and rejected steps)
+  double initial_chi2 = 0.0;      // D^2 over the active edges at the start
+  double final_chi2 = 0.0;        // D^2 over the active edges at the returned estimate
+  bool estimate_updated = false;  // whether *estimate differs from what was passed in
+  std::vector<double>
+      edge_chi2;  // d^2 of every graph edge (active or not) at the returned estimate
+  int num_active_edges = 0;
+  int num_components = 0;
+  int residual_dimension = 0;      // rows: Pose::kDim x active edges
+  int free_parameters = 0;         // Pose::kDim x (poses - components)
+  int linear_solver_analyses = 0;  // symbolic analyses done in this solve (0 when reused)
+
+  bool IsSolutionUsable() const { return termination != TerminationType::kFailure; }
+};
+
+template <class Pose>
+class Optimizer {
+ public:
+  explicit Optimizer(const OptimizerOptions& options = OptimizerOptions()) : options_(options) {}
+
+  // Minimises D^2 over the odometry edges of `graph` and the loop edges with active[e] != 0
+  // (active has one entry per graph edge; entries of odometry edges are ignored: odometry is
+  // always in). `estimate` holds one pose per vertex on entry and the result on return; it is
+  // changed only by accepted steps, so on failure it holds the last good iterate (see
+  // estimate_updated). Options must be valid and sizes must match (checked, aborts otherwise).
+  OptimizerSummary Solve(const PoseGraph<Pose>& graph,
+                         const std::vector<char>& active,
+                         std::vector<Pose>* estimate);
+
+  const OptimizerOptions& options() const { return options_; }
+
+ private:
+  // Sets the block pattern of J'WJ for the given active set; returns false if the previous
+  // pattern (and with it the symbolic analysis) could be kept.
+  bool PrepareLayout(const PoseGraph<Pose>& graph, const std::vector<char>& active);
+  // Writes J'WJ (with identity blocks for fixed poses) into the factorization's values and J'Wr
+  // into `gradient`; returns D^2 at `estimate`.
+  double Linearize(const PoseGraph<Pose>& graph,
+                   const std::vector<char>& active,
+                   const std::vector<char>& fixed,
+                   const std::vector<Pose>& estimate,
+                   Eigen::VectorXd* gradient);
+  int ValueIndex(int row_vertex, int column_vertex, int row, int column) const;
+
+  OptimizerOptions options_;
+  SparseCholesky cholesky_;
+  std::vector<std::vector<int>> column_neighbors_;  // per vertex c: sorted vertices r < c joined
+  std::vector<int> block_column_start_;             // first value index of each block column
+  std::vector<int> diagonal_value_index_;           // value index of each scalar diagonal entry
+};
+
+// d^2 = r' Omega r of one edge at `estimate` (paper eq. 2).
+template <class Pose>
+double EdgeChi2(const Edge<Pose>& edge, const std::vector<Pose>& estimate);
+
+// The connected component of every session for an active set: sessions joined by odometry are
+// one session already, and active loops join sessions. Components are numbered 0, 1, ... in the
+// order of their earliest session.
+template <class Pose>
+std::vector<int> SessionComponents(const PoseGraph<Pose>& graph, const std::vector<char>& active);
+
+// Which poses anchor the gauge for a given active set: one per component (sessions joined by
+// active loops), the first pose of the component's earliest session. Returns one flag per vertex
+// and the number of components in `num_components` (if not null).
+template <class Pose>
+std::vector<char> GaugeAnchors(const PoseGraph<Pose>& graph,
+                               const std::vector<char>& active,
+                               int* num_components);
+
+extern template class Optimizer<Pose2>;
+extern template class Optimizer<Pose3>;
+
+}  // namespace irrr
+
+#endif  // IRRR_CORE_OPTIMIZER_H_

@@ -1,0 +1,135 @@
+#include "core/sparse_cholesky.h"
+
+#include <cholmod.h>
+
+#include <algorithm>
+
+namespace irrr {
+
+struct SparseCholesky::Impl {
+  cholmod_common common;
+  cholmod_sparse* matrix = nullptr;
+  cholmod_factor* factor = nullptr;
+  bool factorized = false;
+
+  Impl() {
+    cholmod_start(&common);
+    // Errors come back through common.status; CHOLMOD must not print.
+    common.print = 0;
+    common.error_handler = nullptr;
+    // One AMD ordering with a weighted postorder: the nested-dissection alternatives cost more to
+    // compute than they save on pose graphs of this size, and one method keeps analysis cheap.
+    common.nmethods = 1;
+    common.method[0].ordering = CHOLMOD_AMD;
+    common.postorder = 1;
+    common.supernodal = CHOLMOD_SUPERNODAL;
+  }
+
+  ~Impl() {
+    FreeAll();
+    cholmod_finish(&common);
+  }
+
+  void FreeAll() {
+    if (factor != nullptr) cholmod_free_factor(&factor, &common);
+    if (matrix != nullptr) cholmod_free_sparse(&matrix, &common);
+    factorized = false;
+  }
+};
+
+SparseCholesky::SparseCholesky() : impl_(std::make_unique<Impl>()) {}
+SparseCholesky::~SparseCholesky() = default;
+
+void SparseCholesky::SetPattern(int n,
+                                const std::vector<int>& column_starts,
+                                const std::vector<int>& row_indices) {
+  impl_->FreeAll();
+  const size_t nonzeros = row_indices.size();
+  impl_->matrix = cholmod_allocate_sparse(n,
+                                          n,
+                                          nonzeros,
+                                          /*sorted=*/1,
+                                          /*packed=*/1,
+                                          /*stype=*/1,
+                                          CHOLMOD_REAL,
+                                          &impl_->common);
+  if (impl_->matrix == nullptr) return;  // reported by Factorize
+  std::copy(column_starts.begin(), column_starts.end(), static_cast<int*>(impl_->matrix->p));
+  std::copy(row_indices.begin(), row_indices.end(), static_cast<int*>(impl_->matrix->i));
+  std::fill_n(static_cast<double*>(impl_->matrix->x), nonzeros, 0.0);
+}
+
+int SparseCholesky::size() const {
+  return impl_->matrix == nullptr ? 0 : static_cast<int>(impl_->matrix->nrow);
+}
+
+int SparseCholesky::num_nonzeros() const {
+  return impl_->matrix == nullptr ? 0 : static_cast<int*>(impl_->matrix->p)[impl_->matrix->ncol];
+}
+
+double* SparseCholesky::mutable_values() {
+  return impl_->matrix == nullptr ? nullptr : static_cast<double*>(impl_->matrix->x);
+}
+
+double SparseCholesky::factor_nonzeros() const {
+  if (impl_->factor == nullptr) return 0.0;
+  return impl_->common.lnz;
+}
+
+LinearSolverStatus SparseCholesky::Factorize(std::string* message) {
+  impl_->factorized = false;
+  if (impl_->matrix == nullptr) {
+    if (message != nullptr) *message = "CHOLMOD: no matrix (allocation failed or no pattern set)";
+    return LinearSolverStatus::kFailure;
+  }
+  if (impl_->factor == nullptr) {
+    impl_->factor = cholmod_analyze(impl_->matrix, &impl_->common);
+    if (impl_->factor == nullptr) {
+      if (message != nullptr) {
+        *message = "CHOLMOD analysis failed (status " + std::to_string(impl_->common.status) + ")";
+      }
+      return LinearSolverStatus::kFailure;
+    }
+    ++num_analyses_;
+  }
+  const int ok = cholmod_factorize(impl_->matrix, impl_->factor, &impl_->common);
+  ++num_factorizations_;
+  if (impl_->common.status == CHOLMOD_NOT_POSDEF) {
+    if (message != nullptr) {
+      *message = "matrix not positive definite (CHOLMOD stopped at column " +
+                 std::to_string(impl_->factor->minor) + ")";
+    }
+    return LinearSolverStatus::kNotPositiveDefinite;
+  }
+  if (!ok || impl_->common.status < CHOLMOD_OK) {
+    if (message != nullptr) {
+      *message =
+          "CHOLMOD factorization failed (status " + std::to_string(impl_->common.status) + ")";
+    }
+    return LinearSolverStatus::kFailure;
+  }
+  impl_->factorized = true;
+  return LinearSolverStatus::kSuccess;
+}
+
+bool SparseCholesky::Solve(const Eigen::VectorXd& b, Eigen::VectorXd* x) {
+  if (!impl_->factorized || b.size() != size()) return false;
+  // A dense header over b's storage: CHOLMOD reads it and allocates the solution itself.
+  cholmod_dense rhs{};
+  rhs.nrow = static_cast<size_t>(b.size());
+  rhs.ncol = 1;
+  rhs.nzmax = rhs.nrow;
+  rhs.d = rhs.nrow;
+  rhs.x = const_cast<double*>(b.data());
+  rhs.z = nullptr;
+  rhs.xtype = CHOLMOD_REAL;
+  rhs.dtype = CHOLMOD_DOUBLE;
+  cholmod_dense* solution = cholmod_solve(CHOLMOD_A, impl_->factor, &rhs, &impl_->common);
+  if (solution == nullptr) return false;
+  x->resize(b.size());
+  std::copy_n(static_cast<const double*>(solution->x), b.size(), x->data());
+  cholmod_free_dense(&solution, &impl_->common);
+  return true;
+}
+
+}  // namespace irrr

@@ -1,0 +1,51 @@
+#ifndef IRRR_TESTS_SYNTHETIC_GRAPH_H_
+#define IRRR_TESTS_SYNTHETIC_GRAPH_H_
+
+// Seeded synthetic pose graphs with known ground truth: the workhorse of the tests.
+//  - SE(2) "grid world": unit steps on a grid with random 90-degree turns (like Manhattan);
+//    a loop closes wherever the robot revisits a grid cell.
+//  - SE(3) helix: a climbing spiral with roll/pitch wobble; loops join each pose to the pose one
+//    revolution below.
+// Noise is drawn in the tangent space and applied with Retract; information = inverse covariance.
+
+#include <cstdint>
+#include <vector>
+
+#include "core/pose_graph.h"
+
+namespace irrr::testing {
+
+struct SyntheticOptions {
+  int num_poses = 300;
+  int num_sessions = 1;              // the trajectory is cut into this many consecutive sessions
+  double translation_sigma_m = 0.0;  // noise of odometry and loop measurements
+  double rotation_sigma_rad = 0.0;
+  double loop_probability = 1.0;  // chance that a revisit yields a loop hypothesis
+  int min_loop_separation = 10;   // loops only between poses at least this far apart in time
+  uint32_t seed = 1;
+};
+
+template <class Pose>
+struct SyntheticGraph {
+  PoseGraph<Pose> graph;
+  std::vector<Pose> ground_truth;  // world frame, indexed like graph vertices
+  std::vector<int> loop_edges;     // graph edge indices of the (true) loops
+};
+
+// Every session's initial estimate is its own dead reckoning from the identity (each session in
+// its own frame). Loops may join sessions.
+template <class Pose>
+SyntheticGraph<Pose> MakeSyntheticGraph(const SyntheticOptions& options);
+
+// Tolerance-free comparison helper: largest translation (m) and rotation (rad) difference
+// between two trajectories after expressing both relative to pose `anchor`.
+template <class Pose>
+void RelativeDifference(const std::vector<Pose>& a,
+                        const std::vector<Pose>& b,
+                        int anchor,
+                        double* max_translation_m,
+                        double* max_rotation_rad);
+
+}  // namespace irrr::testing
+
+#endif  // IRRR_TESTS_SYNTHETIC_GRAPH_H_
