@@ -1,82 +1,105 @@
 #include "core/graph_io.h"
 
 #include <algorithm>
-#include <cerrno>
+#include <charconv>
 #include <cmath>
-#include <cstdlib>
 #include <iomanip>
-#include <limits>
+#include <locale>
 #include <map>
 #include <sstream>
 #include <string>
+#include <string_view>
+#include <system_error>
+#include <type_traits>
 #include <unordered_map>
+#include <utility>
 
 namespace irrr {
 namespace {
 
-// Quaternions in files carry about six significant digits; further off than this the numbers are
-// not a rotation.
+// Files print quaternions with about six significant digits; further from unit norm than this
+// the numbers are not a rotation.
 constexpr double kQuaternionNormTolerance = 1e-3;
-// Closer to unit norm than this a quaternion is left as written, so that write -> read -> write is
-// byte-identical.
+// A quaternion this close to unit norm is kept exactly as written, so that write -> read -> write
+// is byte-identical (normalizing a unit quaternion again can change its last bit).
 constexpr double kAlreadyUnitTolerance = 4e-16;
 
-enum class Tag { kVertex, kEdge, kFix, kUnknown };
-
-// What the tags of one format and dimension are called, and how many numbers follow them.
-struct Dialect {
-  const char* vertex;
-  const char* edge;
-  int vertex_numbers;  // after the id
-  int edge_numbers;    // after the two ids
+// Every pose-graph tag this reader knows, so that a tag of the other format or dimension is
+// reported as such rather than as unknown.
+struct KnownTag {
+  const char* tag;
+  FileFormat format;
+  int dimension;
+  bool is_edge;
+};
+constexpr KnownTag kKnownTags[] = {
+    {"VERTEX_SE2", FileFormat::kG2o, 2, false},
+    {"EDGE_SE2", FileFormat::kG2o, 2, true},
+    {"VERTEX_SE3:QUAT", FileFormat::kG2o, 3, false},
+    {"EDGE_SE3:QUAT", FileFormat::kG2o, 3, true},
+    {"VERTEX2", FileFormat::kToro, 2, false},
+    {"EDGE2", FileFormat::kToro, 2, true},
 };
 
-template <class Pose>
-Dialect DialectFor(FileFormat format) {
-  if constexpr (Pose::kDim == 3) {
-    return format == FileFormat::kToro ? Dialect{"VERTEX2", "EDGE2", 3, 9}
-                                       : Dialect{"VERTEX_SE2", "EDGE_SE2", 3, 9};
-  } else {
-    return Dialect{"VERTEX_SE3:QUAT", "EDGE_SE3:QUAT", 7, 28};
+const KnownTag* FindKnownTag(std::string_view tag) {
+  for (const KnownTag& known : kKnownTags) {
+    if (tag == known.tag) return &known;
   }
+  return nullptr;
 }
+
+const char* FormatName(FileFormat format) { return format == FileFormat::kToro ? "TORO" : "g2o"; }
+
+// Numbers stored for a pose (x y yaw, or x y z qx qy qz qw) and for an information matrix.
+template <class Pose>
+constexpr int kPoseNumbers = Pose::kDim == 3 ? 3 : 7;
+template <class Pose>
+constexpr int kInformationNumbers = (Pose::kDim + 1) * Pose::kDim / 2;
 
 std::string LinePrefix(int line) { return "line " + std::to_string(line) + ": "; }
 
-std::vector<std::string> Tokens(const std::string& line) {
-  std::istringstream stream(line);
-  std::vector<std::string> tokens;
-  std::string token;
-  while (stream >> token) tokens.push_back(token);
-  return tokens;
+// Whitespace-separated tokens; '\r' counts as whitespace so that CRLF files read the same.
+void Tokenize(const std::string& line, std::vector<std::string_view>* tokens) {
+  constexpr const char* kSpace = " \t\r\n\v\f";
+  tokens->clear();
+  size_t begin = line.find_first_not_of(kSpace);
+  while (begin != std::string::npos) {
+    const size_t end = std::min(line.find_first_of(kSpace, begin), line.size());
+    tokens->emplace_back(line.data() + begin, end - begin);
+    begin = line.find_first_not_of(kSpace, end);
+  }
 }
 
-bool IsSkipped(const std::vector<std::string>& tokens) {
-  return tokens.empty() || tokens[0][0] == '#';
+bool IsDataLine(const std::vector<std::string_view>& tokens) {
+  return !tokens.empty() && tokens[0][0] != '#';
 }
 
-bool ParseId(const std::string& token, int64_t* value) {
-  errno = 0;
-  char* end = nullptr;
-  const long long parsed = std::strtoll(token.c_str(), &end, 10);
-  if (errno != 0 || end == token.c_str() || *end != '\0') return false;
-  *value = parsed;
-  return true;
+// from_chars is exact and locale independent but rejects the '+' that strtod accepts.
+std::string_view WithoutPlus(std::string_view token) {
+  if (token.size() > 1 && token[0] == '+' && token[1] != '-' && token[1] != '+') {
+    token.remove_prefix(1);
+  }
+  return token;
 }
 
-bool ParseNumber(const std::string& token, double* value) {
-  char* end = nullptr;
-  *value = std::strtod(token.c_str(), &end);
-  return end != token.c_str() && *end == '\0';
+// Parses a whole token; the message (without the line) says what is wrong.
+template <class T>
+Status ParseToken(std::string_view token, const char* what, T* value) {
+  const std::string_view digits = WithoutPlus(token);
+  const auto [end, error] = std::from_chars(digits.data(), digits.data() + digits.size(), *value);
+  if (error == std::errc::result_out_of_range) {
+    return Status::Error("'" + std::string(token) + "' is out of range for " + what);
+  }
+  if (error != std::errc() || end != digits.data() + digits.size()) {
+    return Status::Error("'" + std::string(token) + "' is not " + what);
+  }
+  return Status::Ok();
 }
 
-// The pose stored as numbers after an id: x y yaw, or x y z qx qy qz qw.
+// A pose from its numbers in the file's order (the quaternion as qx qy qz qw).
 template <class Pose>
 Status PoseFromNumbers(const double* v, Pose* pose) {
-  for (int k = 0; k < (Pose::kDim == 3 ? 3 : 7); ++k) {
-    if (!std::isfinite(v[k])) return Status::Error("non-finite number in the pose");
-  }
-  if constexpr (Pose::kDim == 3) {
+  if constexpr (std::is_same_v<Pose, Pose2>) {
     *pose = Pose2(v[0], v[1], v[2]);
   } else {
     Eigen::Quaterniond q(v[6], v[3], v[4], v[5]);
@@ -89,60 +112,82 @@ Status PoseFromNumbers(const double* v, Pose* pose) {
     if (std::abs(norm - 1.0) > kAlreadyUnitTolerance) q.normalize();
     *pose = Pose3(q, Eigen::Vector3d(v[0], v[1], v[2]));
   }
-  return Status::Ok();
+  return ValidatePose(*pose);
 }
 
-// Information from the numbers after the measurement: g2o's upper triangle row by row, or TORO's
-// xx xy yy tt xt yt.
+// The symmetric information matrix from its stored triangle: g2o's upper triangle row by row, or
+// TORO's xx xy yy tt xt yt (index 0 = x, 1 = y, 2 = theta).
 template <class Pose>
 typename Pose::Matrix InformationFromNumbers(const double* v, FileFormat format) {
   typename Pose::Matrix m;
-  constexpr int d = Pose::kDim;
-  if (format == FileFormat::kToro) {
-    m << v[0], v[1], v[4], v[1], v[2], v[5], v[4], v[5], v[3];
-    return m;
+  if constexpr (std::is_same_v<Pose, Pose2>) {
+    if (format == FileFormat::kToro) {
+      m << v[0], v[1], v[4],  //
+          v[1], v[2], v[5],   //
+          v[4], v[5], v[3];
+      return m;
+    }
   }
   int k = 0;
-  for (int r = 0; r < d; ++r) {
-    for (int c = r; c < d; ++c) m(r, c) = m(c, r) = v[k++];
+  for (int r = 0; r < Pose::kDim; ++r) {
+    for (int c = r; c < Pose::kDim; ++c) m(r, c) = m(c, r) = v[k++];
   }
   return m;
 }
 
-// The tag's dimension if it is a known pose-graph tag of any format: used to say "3D tag in a
-// 2D read" rather than "unknown tag".
-int KnownTagDimension(const std::string& tag) {
-  if (tag == "VERTEX_SE2" || tag == "EDGE_SE2" || tag == "VERTEX2" || tag == "EDGE2") return 2;
-  if (tag == "VERTEX_SE3:QUAT" || tag == "EDGE_SE3:QUAT") return 3;
-  return 0;
+template <class Pose>
+void WritePose(std::ostream& out, const Pose& pose) {
+  const auto& t = pose.translation();
+  if constexpr (std::is_same_v<Pose, Pose2>) {
+    out << t.x() << ' ' << t.y() << ' ' << pose.yaw_rad();
+  } else {
+    const Eigen::Quaterniond& q = pose.quaternion();
+    out << t.x() << ' ' << t.y() << ' ' << t.z() << ' ' << q.x() << ' ' << q.y() << ' ' << q.z()
+        << ' ' << q.w();
+  }
+}
+
+template <class Pose>
+void WriteInformation(std::ostream& out, FileFormat format, const typename Pose::Matrix& m) {
+  if (format == FileFormat::kToro) {
+    constexpr int kToroOrder[6][2] = {{0, 0}, {0, 1}, {1, 1}, {2, 2}, {0, 2}, {1, 2}};
+    for (const auto& rc : kToroOrder) out << ' ' << m(rc[0], rc[1]);
+    return;
+  }
+  for (int r = 0; r < Pose::kDim; ++r) {
+    for (int c = r; c < Pose::kDim; ++c) out << ' ' << m(r, c);
+  }
+}
+
+template <class Pose>
+Status CheckFormatHoldsPose(FileFormat format) {
+  if (format == FileFormat::kToro && !std::is_same_v<Pose, Pose2>) {
+    return Status::Error(std::string("the TORO format holds 2D graphs only, not ") + Pose::kName);
+  }
+  return Status::Ok();
 }
 
 }  // namespace
 
 Status DetectGraphFile(std::istream& in, FileFormat* format, int* dimension) {
   std::string line;
+  std::vector<std::string_view> tokens;
   int line_number = 0;
   while (std::getline(in, line)) {
     ++line_number;
-    const std::vector<std::string> tokens = Tokens(line);
-    if (IsSkipped(tokens) || tokens[0] == "FIX") continue;
-    const std::string& tag = tokens[0];
-    if (tag == "VERTEX_SE2" || tag == "EDGE_SE2") {
-      *format = FileFormat::kG2o;
-      *dimension = 2;
-    } else if (tag == "VERTEX_SE3:QUAT" || tag == "EDGE_SE3:QUAT") {
-      *format = FileFormat::kG2o;
-      *dimension = 3;
-    } else if (tag == "VERTEX2" || tag == "EDGE2") {
-      *format = FileFormat::kToro;
-      *dimension = 2;
-    } else {
-      return Status::Error(LinePrefix(line_number) + "unknown tag '" + tag +
+    Tokenize(line, &tokens);
+    if (!IsDataLine(tokens) || tokens[0] == "FIX") continue;
+    const KnownTag* known = FindKnownTag(tokens[0]);
+    if (known == nullptr) {
+      return Status::Error(LinePrefix(line_number) + "unknown tag '" + std::string(tokens[0]) +
                            "' (expected a g2o or TORO vertex or edge)");
     }
+    *format = known->format;
+    *dimension = known->dimension;
     return Status::Ok();
   }
-  return Status::Error("no vertex or edge line found (empty file?)");
+  return Status::Error("empty input: no vertex or edge line in " + std::to_string(line_number) +
+                       " lines");
 }
 
 template <class Pose>
@@ -150,95 +195,104 @@ Status ReadGraphFile(std::istream& in,
                      FileFormat format,
                      const ReadOptions& options,
                      GraphFile<Pose>* out) {
-  if (format == FileFormat::kToro && Pose::kDim != 3) {
-    return Status::Error("the TORO format holds 2D graphs only");
-  }
-  const Dialect dialect = DialectFor<Pose>(format);
+  IRRR_CHECK(out != nullptr);
+  if (Status s = CheckFormatHoldsPose<Pose>(format); !s.ok()) return s;
+  constexpr int kDimension = Pose::kTranslationDim;
+  constexpr int kPose = kPoseNumbers<Pose>;
+
   GraphFile<Pose> file;
   std::unordered_map<int64_t, int> vertex_line;
   std::string line;
+  std::vector<std::string_view> tokens;
+  double numbers[kPose + kInformationNumbers<Pose>];
   int line_number = 0;
-  std::vector<double> numbers;
   while (std::getline(in, line)) {
     ++line_number;
+    Tokenize(line, &tokens);
+    if (!IsDataLine(tokens)) continue;
     const std::string where = LinePrefix(line_number);
-    const std::vector<std::string> tokens = Tokens(line);
-    if (IsSkipped(tokens)) continue;
-    const std::string& tag = tokens[0];
-    Tag kind = Tag::kUnknown;
-    if (tag == dialect.vertex) kind = Tag::kVertex;
-    if (tag == dialect.edge) kind = Tag::kEdge;
-    if (tag == "FIX" && format == FileFormat::kG2o) kind = Tag::kFix;
-    if (kind == Tag::kUnknown) {
-      const int dimension = KnownTagDimension(tag);
-      if (dimension != 0) {
-        return Status::Error(where + "tag " + tag + " does not belong in a " +
-                             (format == FileFormat::kToro ? "TORO" : "g2o") + " " +
-                             std::to_string(Pose::kTranslationDim) + "D file");
+    const std::string tag(tokens[0]);
+    const int found = static_cast<int>(tokens.size()) - 1;
+
+    // g2o's FIX chooses the gauge, which is the optimizer's business; only its ids are checked.
+    if (tag == "FIX" && format == FileFormat::kG2o) {
+      if (found == 0) return Status::Error(where + "FIX expects at least one vertex id");
+      for (int k = 1; k <= found; ++k) {
+        int64_t id = 0;
+        if (Status s = ParseToken(tokens[k], "a 64-bit integer id", &id); !s.ok()) {
+          return Status::Error(where + "FIX: " + s.message());
+        }
       }
+      continue;
+    }
+    const KnownTag* known = FindKnownTag(tag);
+    if (known == nullptr) {
       if (options.skip_unknown_tags) continue;
       return Status::Error(where + "unknown tag '" + tag + "'");
     }
+    if (known->format != format || known->dimension != kDimension) {
+      return Status::Error(where + tag + " is a " + FormatName(known->format) + " " +
+                           std::to_string(known->dimension) + "D tag, but this is a " +
+                           FormatName(format) + " " + std::to_string(kDimension) + "D read");
+    }
 
-    const int ids = kind == Tag::kEdge ? 2 : 1;
-    const int expected = kind == Tag::kVertex ? dialect.vertex_numbers
-                         : kind == Tag::kEdge ? dialect.edge_numbers
-                                              : 0;
-    const int found = static_cast<int>(tokens.size()) - 1 - ids;
+    const int ids = known->is_edge ? 2 : 1;
+    const int expected = ids + kPose + (known->is_edge ? kInformationNumbers<Pose> : 0);
     if (found != expected) {
-      return Status::Error(where + tag + " expects " + std::to_string(ids) +
-                           (ids == 1 ? " id and " : " ids and ") + std::to_string(expected) +
-                           " numbers, found " + std::to_string(std::max(0, found + ids)) +
-                           " fields");
+      return Status::Error(where + tag + " expects " + std::to_string(expected) +
+                           " numbers after the tag, found " + std::to_string(found));
     }
     int64_t id[2] = {0, 0};
     for (int k = 0; k < ids; ++k) {
-      if (!ParseId(tokens[1 + k], &id[k])) {
-        return Status::Error(where + tag + ": '" + tokens[1 + k] + "' is not an integer id");
+      if (Status s = ParseToken(tokens[1 + k], "a 64-bit integer id", &id[k]); !s.ok()) {
+        return Status::Error(where + tag + ": " + s.message());
       }
     }
-    numbers.assign(expected, 0.0);
-    for (int k = 0; k < expected; ++k) {
-      if (!ParseNumber(tokens[1 + ids + k], &numbers[k])) {
-        return Status::Error(where + tag + ": '" + tokens[1 + ids + k] + "' is not a number");
+    const std::string name = tag + " " + std::to_string(id[0]) +
+                             (known->is_edge ? " " + std::to_string(id[1]) : std::string());
+    for (int k = 0; k < expected - ids; ++k) {
+      if (Status s = ParseToken(tokens[1 + ids + k], "a number", &numbers[k]); !s.ok()) {
+        return Status::Error(where + name + ": " + s.message());
+      }
+      if (!std::isfinite(numbers[k])) {
+        const char* part = k >= kPose ? "information" : known->is_edge ? "measurement" : "estimate";
+        return Status::Error(where + name + ": " + part + " has a non-finite number '" +
+                             std::string(tokens[1 + ids + k]) + "'");
       }
     }
 
-    if (kind == Tag::kFix) continue;
-    if (kind == Tag::kVertex) {
-      const auto [it, inserted] = vertex_line.emplace(id[0], line_number);
+    if (!known->is_edge) {
+      const auto [first, inserted] = vertex_line.emplace(id[0], line_number);
       if (!inserted) {
         return Status::Error(where + "duplicate vertex id " + std::to_string(id[0]) +
-                             " (first on line " + std::to_string(it->second) + ")");
+                             " (first on line " + std::to_string(first->second) + ")");
       }
       FileVertex<Pose> vertex;
       vertex.id = id[0];
       vertex.line = line_number;
-      if (Status s = PoseFromNumbers(numbers.data(), &vertex.estimate); !s.ok()) {
-        return Status::Error(where + "vertex " + std::to_string(id[0]) + ": " + s.message());
+      if (Status s = PoseFromNumbers(numbers, &vertex.estimate); !s.ok()) {
+        return Status::Error(where + name + ": estimate: " + s.message());
       }
       file.vertices.push_back(vertex);
       continue;
     }
-
-    const std::string edge_name = tag + " " + std::to_string(id[0]) + " " + std::to_string(id[1]);
-    if (id[0] == id[1]) return Status::Error(where + edge_name + ": self-loop");
+    if (id[0] == id[1]) return Status::Error(where + name + ": self-loop");
     FileEdge<Pose> edge;
     edge.from = id[0];
     edge.to = id[1];
     edge.line = line_number;
-    if (Status s = PoseFromNumbers(numbers.data(), &edge.measurement); !s.ok()) {
-      return Status::Error(where + edge_name + ": measurement: " + s.message());
+    if (Status s = PoseFromNumbers(numbers, &edge.measurement); !s.ok()) {
+      return Status::Error(where + name + ": measurement: " + s.message());
     }
-    edge.information =
-        InformationFromNumbers<Pose>(numbers.data() + (Pose::kDim == 3 ? 3 : 7), format);
+    edge.information = InformationFromNumbers<Pose>(numbers + kPose, format);
     if (Status s = ValidateInformation<Pose>(edge.information); !s.ok()) {
-      return Status::Error(where + edge_name + ": " + s.message());
+      return Status::Error(where + name + ": " + s.message());
     }
     file.edges.push_back(edge);
   }
   if (in.bad()) return Status::Error("read error after line " + std::to_string(line_number));
 
+  // Vertices may be declared after the edges that use them, so endpoints are checked at the end.
   if (!file.vertices.empty()) {
     for (const FileEdge<Pose>& edge : file.edges) {
       for (const int64_t end : {edge.from, edge.to}) {
@@ -256,39 +310,30 @@ Status ReadGraphFile(std::istream& in,
 
 template <class Pose>
 Status WriteGraphFile(std::ostream& out, FileFormat format, const GraphFile<Pose>& file) {
-  if (format == FileFormat::kToro && Pose::kDim != 3) {
-    return Status::Error("the TORO format holds 2D graphs only");
-  }
-  const Dialect dialect = DialectFor<Pose>(format);
-  std::ostringstream text;
-  text << std::setprecision(17);
-  auto write_pose = [&text](const Pose& pose) {
-    if constexpr (Pose::kDim == 3) {
-      text << pose.translation().x() << ' ' << pose.translation().y() << ' ' << pose.yaw_rad();
-    } else {
-      const Eigen::Quaterniond& q = pose.quaternion();
-      text << pose.translation().x() << ' ' << pose.translation().y() << ' '
-           << pose.translation().z() << ' ' << q.x() << ' ' << q.y() << ' ' << q.z() << ' '
-           << q.w();
+  if (Status s = CheckFormatHoldsPose<Pose>(format); !s.ok()) return s;
+  const char* vertex_tag = nullptr;
+  const char* edge_tag = nullptr;
+  for (const KnownTag& known : kKnownTags) {
+    if (known.format == format && known.dimension == Pose::kTranslationDim) {
+      (known.is_edge ? edge_tag : vertex_tag) = known.tag;
     }
-  };
+  }
+  IRRR_CHECK(vertex_tag != nullptr && edge_tag != nullptr);
+
+  // The text goes to a local stream first so that a failing format leaves `out` untouched, and
+  // the caller's stream flags (precision, locale) do not matter.
+  std::ostringstream text;
+  text.imbue(std::locale::classic());
+  text << std::setprecision(17);
   for (const FileVertex<Pose>& vertex : file.vertices) {
-    text << dialect.vertex << ' ' << vertex.id << ' ';
-    write_pose(vertex.estimate);
+    text << vertex_tag << ' ' << vertex.id << ' ';
+    WritePose(text, vertex.estimate);
     text << '\n';
   }
   for (const FileEdge<Pose>& edge : file.edges) {
-    text << dialect.edge << ' ' << edge.from << ' ' << edge.to << ' ';
-    write_pose(edge.measurement);
-    const typename Pose::Matrix& m = edge.information;
-    if (format == FileFormat::kToro) {
-      text << ' ' << m(0, 0) << ' ' << m(0, 1) << ' ' << m(1, 1) << ' ' << m(2, 2) << ' ' << m(0, 2)
-           << ' ' << m(1, 2);
-    } else {
-      for (int r = 0; r < Pose::kDim; ++r) {
-        for (int c = r; c < Pose::kDim; ++c) text << ' ' << m(r, c);
-      }
-    }
+    text << edge_tag << ' ' << edge.from << ' ' << edge.to << ' ';
+    WritePose(text, edge.measurement);
+    WriteInformation<Pose>(text, format, edge.information);
     text << '\n';
   }
   out << text.str();
@@ -300,9 +345,19 @@ template <class Pose>
 Status BuildPoseGraph(const GraphFile<Pose>& file,
                       PoseGraph<Pose>* graph,
                       std::vector<int>* graph_edge_of_file_edge) {
-  // Vertex ids in increasing order, with the file's estimate where there is one.
+  IRRR_CHECK(graph != nullptr && graph_edge_of_file_edge != nullptr);
+  IRRR_CHECK(graph->num_vertices() == 0 && graph->num_sessions() == 0);
+  const int num_file_edges = static_cast<int>(file.edges.size());
+
+  // Vertex ids in increasing order, with the file's record (null for edges-only files).
   std::map<int64_t, const FileVertex<Pose>*> vertices;
-  for (const FileVertex<Pose>& v : file.vertices) vertices.emplace(v.id, &v);
+  for (const FileVertex<Pose>& v : file.vertices) {
+    const auto [first, inserted] = vertices.emplace(v.id, &v);
+    if (!inserted) {
+      return Status::Error(LinePrefix(v.line) + "duplicate vertex id " + std::to_string(v.id) +
+                           " (first on line " + std::to_string(first->second->line) + ")");
+    }
+  }
   if (file.vertices.empty()) {
     for (const FileEdge<Pose>& e : file.edges) {
       vertices.emplace(e.from, nullptr);
@@ -311,58 +366,53 @@ Status BuildPoseGraph(const GraphFile<Pose>& file,
   }
   // The odometry of vertex i is the first edge (i-1, i) in file order.
   std::unordered_map<int64_t, int> odometry_of;
-  for (int k = 0; k < static_cast<int>(file.edges.size()); ++k) {
+  for (int k = 0; k < num_file_edges; ++k) {
     const FileEdge<Pose>& e = file.edges[k];
-    if (e.from != std::numeric_limits<int64_t>::max() && e.to == e.from + 1) {
-      odometry_of.emplace(e.to, k);
-    }
+    if (e.from < e.to && e.to - 1 == e.from) odometry_of.emplace(e.to, k);
   }
 
   PoseGraph<Pose> built;
-  std::vector<int> edge_map(file.edges.size(), -1);
+  std::vector<int> edge_map(num_file_edges, -1);
   int session = -1;
   int ordinal = 0;
-  Pose dead_reckoning;
   int64_t previous_id = 0;
+  Pose dead_reckoning;
   for (const auto& [id, record] : vertices) {
-    const auto odometry = odometry_of.find(id);
-    const bool continues = ordinal > 0 && previous_id == id - 1 && odometry != odometry_of.end();
-    const std::string where = record != nullptr
-                                  ? LinePrefix(record->line)
-                                  : std::string("vertex ") + std::to_string(id) + ": ";
-    Status status = Status::Ok();
-    if (!continues) {
-      status = built.AddSession(built.num_sessions(), &session);
-      dead_reckoning = Pose();
-      if (status.ok()) {
-        status = built.AddPose(session,
-                               id,
-                               ordinal,
-                               record ? record->estimate : dead_reckoning,
-                               nullptr,
-                               nullptr,
-                               nullptr);
-      }
-    } else {
-      const FileEdge<Pose>& edge = file.edges[odometry->second];
-      dead_reckoning = dead_reckoning * edge.measurement;
-      edge_map[odometry->second] = built.num_edges();
-      status = built.AddPose(session,
-                             id,
-                             ordinal,
-                             record ? record->estimate : dead_reckoning,
-                             &edge.measurement,
-                             &edge.information,
-                             nullptr);
-      if (!status.ok()) {
-        return Status::Error(LinePrefix(edge.line) + status.message());
+    // A vertex's own estimate is checked first so that an error is blamed on the right line.
+    if (record != nullptr) {
+      if (Status s = ValidatePose(record->estimate); !s.ok()) {
+        return Status::Error(LinePrefix(record->line) + "vertex " + std::to_string(id) +
+                             ": estimate: " + s.message());
       }
     }
-    if (!status.ok()) return Status::Error(where + status.message());
+    // Ids are sorted, so vertex i-1 exists exactly when it is the previous one.
+    const auto found = odometry_of.find(id);
+    const bool continues = ordinal > 0 && found != odometry_of.end() && previous_id == id - 1;
+    const FileEdge<Pose>* odometry = continues ? &file.edges[found->second] : nullptr;
+    if (odometry != nullptr) {
+      dead_reckoning = dead_reckoning * odometry->measurement;
+      edge_map[found->second] = built.num_edges();  // AddPose appends the odometry edge
+    } else {
+      dead_reckoning = Pose();
+      const Status added = built.AddSession(built.num_sessions(), &session);
+      IRRR_CHECK(added.ok());  // session ids 0, 1, ... are unique
+    }
+    const Status status = built.AddPose(session,
+                                        id,
+                                        static_cast<double>(ordinal),
+                                        record != nullptr ? record->estimate : dead_reckoning,
+                                        odometry != nullptr ? &odometry->measurement : nullptr,
+                                        odometry != nullptr ? &odometry->information : nullptr,
+                                        nullptr);
+    if (!status.ok()) {
+      const int line = odometry != nullptr ? odometry->line : record != nullptr ? record->line : 0;
+      return Status::Error(LinePrefix(line) + status.message());
+    }
     previous_id = id;
     ++ordinal;
   }
-  for (int k = 0; k < static_cast<int>(file.edges.size()); ++k) {
+
+  for (int k = 0; k < num_file_edges; ++k) {
     if (edge_map[k] >= 0) continue;
     const FileEdge<Pose>& e = file.edges[k];
     const int from = built.FindVertex(e.from);
@@ -385,18 +435,22 @@ template <class Pose>
 GraphFile<Pose> WithEstimate(const GraphFile<Pose>& file,
                              const PoseGraph<Pose>& graph,
                              const std::vector<Pose>& estimate) {
+  IRRR_CHECK(static_cast<int>(estimate.size()) == graph.num_vertices());
   GraphFile<Pose> out = file;
   if (out.vertices.empty()) {
-    std::vector<int> order(graph.num_vertices());
-    for (int v = 0; v < graph.num_vertices(); ++v) order[v] = v;
-    std::sort(order.begin(), order.end(), [&graph](int a, int b) {
-      return graph.vertex(a).id < graph.vertex(b).id;
-    });
-    for (int v : order) out.vertices.push_back(FileVertex<Pose>{graph.vertex(v).id, Pose(), 0});
+    std::vector<int64_t> ids;
+    ids.reserve(graph.num_vertices());
+    for (int v = 0; v < graph.num_vertices(); ++v) ids.push_back(graph.vertex(v).id);
+    std::sort(ids.begin(), ids.end());
+    for (const int64_t id : ids) {
+      FileVertex<Pose> vertex;
+      vertex.id = id;
+      out.vertices.push_back(vertex);
+    }
   }
   for (FileVertex<Pose>& vertex : out.vertices) {
     const int index = graph.FindVertex(vertex.id);
-    IRRR_CHECK(index >= 0 && index < static_cast<int>(estimate.size()));
+    IRRR_CHECK(index >= 0);  // the graph was built from these records
     vertex.estimate = estimate[index];
   }
   return out;

@@ -7,9 +7,7 @@
 namespace irrr {
 namespace {
 
-bool EdgeIsActive(EdgeKind kind, const std::vector<char>& active, int e) {
-  return kind == EdgeKind::kOdometry || active[e] != 0;
-}
+bool EdgeIsActive(const std::vector<char>& active, int e) { return active[e] != 0; }
 
 int FindRoot(std::vector<int>* parent, int i) {
   while ((*parent)[i] != i) {
@@ -54,7 +52,7 @@ std::vector<int> SessionComponents(const PoseGraph<Pose>& graph, const std::vect
   std::iota(parent.begin(), parent.end(), 0);
   for (int e = 0; e < graph.num_edges(); ++e) {
     const Edge<Pose>& edge = graph.edge(e);
-    if (!EdgeIsActive(edge.kind, active, e)) continue;
+    if (!EdgeIsActive(active, e)) continue;
     const int a = FindRoot(&parent, graph.vertex(edge.from).session);
     const int b = FindRoot(&parent, graph.vertex(edge.to).session);
     // The smaller index stays root, so a component's root is its earliest session.
@@ -74,15 +72,38 @@ template <class Pose>
 std::vector<char> GaugeAnchors(const PoseGraph<Pose>& graph,
                                const std::vector<char>& active,
                                int* num_components) {
-  const std::vector<int> component = SessionComponents(graph, active);
-  std::vector<char> anchored(graph.num_sessions(), 0);
-  std::vector<char> fixed(graph.num_vertices(), 0);
+  const int n = graph.num_vertices();
+  std::vector<int> parent(n);
+  std::iota(parent.begin(), parent.end(), 0);
+  std::vector<char> touched(n, 0);
+  // Orders vertices by (session, time): a component's root is its earliest session's first pose.
+  auto earlier = [&graph](int a, int b) {
+    const int session_a = graph.vertex(a).session;
+    const int session_b = graph.vertex(b).session;
+    return session_a != session_b ? session_a < session_b : a < b;
+  };
+  for (int e = 0; e < graph.num_edges(); ++e) {
+    if (!EdgeIsActive(active, e)) continue;
+    const Edge<Pose>& edge = graph.edge(e);
+    touched[edge.from] = touched[edge.to] = 1;
+    const int a = FindRoot(&parent, edge.from);
+    const int b = FindRoot(&parent, edge.to);
+    if (a == b) continue;
+    if (earlier(a, b)) {
+      parent[b] = a;
+    } else {
+      parent[a] = b;
+    }
+  }
+  std::vector<char> fixed(n, 0);
   int components = 0;
-  for (int s = 0; s < graph.num_sessions(); ++s) {
-    if (graph.session(s).vertices.empty() || anchored[component[s]]) continue;
-    anchored[component[s]] = 1;
-    fixed[graph.session(s).vertices.front()] = 1;
-    ++components;
+  for (int v = 0; v < n; ++v) {
+    if (!touched[v]) {
+      fixed[v] = 1;  // in no active edge: not part of this problem
+    } else if (FindRoot(&parent, v) == v) {
+      fixed[v] = 1;
+      ++components;
+    }
   }
   if (num_components != nullptr) *num_components = components;
   return fixed;
@@ -95,7 +116,7 @@ bool Optimizer<Pose>::PrepareLayout(const PoseGraph<Pose>& graph, const std::vec
   std::vector<std::vector<int>> neighbors(n);
   for (int e = 0; e < graph.num_edges(); ++e) {
     const Edge<Pose>& edge = graph.edge(e);
-    if (options_.pattern == SparsityPattern::kActiveEdges && !EdgeIsActive(edge.kind, active, e)) {
+    if (options_.pattern == SparsityPattern::kActiveEdges && !EdgeIsActive(active, e)) {
       continue;
     }
     neighbors[std::max(edge.from, edge.to)].push_back(std::min(edge.from, edge.to));
@@ -180,7 +201,7 @@ double Optimizer<Pose>::Linearize(const PoseGraph<Pose>& graph,
   Matrix J_to;
   for (int e = 0; e < graph.num_edges(); ++e) {
     const Edge<Pose>& edge = graph.edge(e);
-    if (!EdgeIsActive(edge.kind, active, e)) continue;
+    if (!EdgeIsActive(active, e)) continue;
     const typename Pose::Tangent r = RelativePoseResidual<Pose>(
         edge.measurement, estimate[edge.from], estimate[edge.to], &J_from, &J_to);
     const typename Pose::Tangent weighted_r = edge.information * r;
@@ -219,10 +240,18 @@ OptimizerSummary Optimizer<Pose>::Solve(const PoseGraph<Pose>& graph,
   const int n = graph.num_vertices();
   const std::vector<char> fixed = GaugeAnchors(graph, active, &summary.num_components);
   for (int e = 0; e < graph.num_edges(); ++e) {
-    summary.num_active_edges += EdgeIsActive(graph.edge(e).kind, active, e) ? 1 : 0;
+    summary.num_active_edges += EdgeIsActive(active, e) ? 1 : 0;
   }
   summary.residual_dimension = d * summary.num_active_edges;
-  summary.free_parameters = d * (n - summary.num_components);
+  int touched = 0;
+  {
+    std::vector<char> in_problem(n, 0);
+    for (int e = 0; e < graph.num_edges(); ++e) {
+      if (EdgeIsActive(active, e)) in_problem[graph.edge(e).from] = in_problem[graph.edge(e).to] = 1;
+    }
+    for (char flag : in_problem) touched += flag;
+  }
+  summary.free_parameters = d * (touched - summary.num_components);
 
   const int analyses_before = cholesky_.num_analyses();
   std::vector<Pose>& x = *estimate;
@@ -239,7 +268,7 @@ OptimizerSummary Optimizer<Pose>::Solve(const PoseGraph<Pose>& graph,
   auto chi2_at = [&](const std::vector<Pose>& poses) {
     double chi2 = 0.0;
     for (int e = 0; e < graph.num_edges(); ++e) {
-      if (EdgeIsActive(graph.edge(e).kind, active, e)) chi2 += EdgeChi2(graph.edge(e), poses);
+      if (EdgeIsActive(active, e)) chi2 += EdgeChi2(graph.edge(e), poses);
     }
     return chi2;
   };
@@ -359,7 +388,7 @@ OptimizerSummary Optimizer<Pose>::Solve(const PoseGraph<Pose>& graph,
   summary.final_chi2 = 0.0;
   for (int e = 0; e < graph.num_edges(); ++e) {
     summary.edge_chi2[e] = EdgeChi2(graph.edge(e), x);
-    if (EdgeIsActive(graph.edge(e).kind, active, e)) summary.final_chi2 += summary.edge_chi2[e];
+    if (EdgeIsActive(active, e)) summary.final_chi2 += summary.edge_chi2[e];
   }
   return summary;
 }

@@ -2,16 +2,17 @@
 #define IRRR_CORE_OPTIMIZER_H_
 
 // Sparse nonlinear least squares over a pose graph (paper eq. 3): minimise
-//   D^2(x) = sum over odometry edges and active loop edges of r_ij(x)' Omega_ij r_ij(x)
+//   D^2(x) = sum over the active edges (odometry and loops) of r_ij(x)' Omega_ij r_ij(x)
 // by Gauss-Newton or Levenberg-Marquardt on the normal equations, solved with CHOLMOD.
 //
 // iRRR solves one graph again and again with different subsets of loop edges, so the subset is
 // an argument of Solve, and an Optimizer keeps its symbolic analysis between calls: a solve whose
 // sparsity pattern equals the previous one's reuses the ordering and supernodes.
 //
-// Gauge: each connected component (sessions joined by active loops) has the first pose of its
-// earliest session held fixed; the others move. Fixed poses keep their place in the linear system
-// with an identity block, so the pattern does not depend on which poses are fixed.
+// Gauge: each connected component of the active edges has its earliest pose (first pose of its
+// earliest session) held fixed; poses in no active edge are not part of the problem and stay
+// where they are. Fixed poses keep their place in the linear system with an identity block, so
+// the pattern does not depend on which poses are fixed.
 
 #include <string>
 #include <vector>
@@ -76,9 +77,8 @@ class Optimizer {
  public:
   explicit Optimizer(const OptimizerOptions& options = OptimizerOptions()) : options_(options) {}
 
-  // Minimises D^2 over the odometry edges of `graph` and the loop edges with active[e] != 0
-  // (active has one entry per graph edge; entries of odometry edges are ignored: odometry is
-  // always in). `estimate` holds one pose per vertex on entry and the result on return; it is
+  // Minimises D^2 over the edges with active[e] != 0 (one entry per graph edge, odometry
+  // included: a caller that wants only some sessions leaves the others' odometry out). `estimate` holds one pose per vertex on entry and the result on return; it is
   // changed only by accepted steps, so on failure it holds the last good iterate (see
   // estimate_updated). Options must be valid and sizes must match (checked, aborts otherwise).
   OptimizerSummary Solve(const PoseGraph<Pose>& graph,
@@ -111,15 +111,15 @@ class Optimizer {
 template <class Pose>
 double EdgeChi2(const Edge<Pose>& edge, const std::vector<Pose>& estimate);
 
-// The connected component of every session for an active set: sessions joined by odometry are
-// one session already, and active loops join sessions. Components are numbered 0, 1, ... in the
+// The connected component of every session for an active set: active edges between two sessions
+// join them (a session with no active edge is a component of its own). Components are numbered 0, 1, ... in the
 // order of their earliest session.
 template <class Pose>
 std::vector<int> SessionComponents(const PoseGraph<Pose>& graph, const std::vector<char>& active);
 
-// Which poses anchor the gauge for a given active set: one per component (sessions joined by
-// active loops), the first pose of the component's earliest session. Returns one flag per vertex
-// and the number of components in `num_components` (if not null).
+// Which poses the optimizer holds fixed for a given active set: one anchor per connected
+// component of the active edges (its earliest session's earliest pose), and every pose in no
+// active edge. Returns one flag per vertex and the number of components (if not null).
 template <class Pose>
 std::vector<char> GaugeAnchors(const PoseGraph<Pose>& graph,
                                const std::vector<char>& active,

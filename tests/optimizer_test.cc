@@ -199,7 +199,7 @@ TEMPLATE_TEST_CASE("Each component keeps its own gauge until an active loop join
   options.rotation_sigma_rad = 0.01;
   const auto synthetic = MakeSyntheticGraph<TestType>(options);
   const PoseGraph<TestType>& graph = synthetic.graph;
-  std::vector<char> intra_only(graph.num_edges(), 0);
+  std::vector<char> intra_only(graph.num_edges(), 1);
   int inter_session_loops = 0;
   for (int e : synthetic.loop_edges) {
     const bool inter =
@@ -251,6 +251,38 @@ TEMPLATE_TEST_CASE("Each component keeps its own gauge until an active loop join
   const TestType before =
       graph.initial_estimate()[anchor].Inverse() * graph.initial_estimate()[second];
   CHECK((expected.Inverse() * before).translation().norm() > 1.0);
+}
+
+TEST_CASE("A session whose edges are all inactive is left where it is and not counted",
+          "[optimizer]") {
+  SyntheticOptions options;
+  options.num_poses = 200;
+  options.num_sessions = 2;
+  options.translation_sigma_m = 0.02;
+  options.rotation_sigma_rad = 0.01;
+  const auto synthetic = MakeSyntheticGraph<Pose2>(options);
+  const PoseGraph<Pose2>& graph = synthetic.graph;
+  // Only session 0: its odometry and its own loops.
+  std::vector<char> active(graph.num_edges(), 0);
+  int session_zero_edges = 0;
+  for (int e = 0; e < graph.num_edges(); ++e) {
+    const Edge<Pose2>& edge = graph.edge(e);
+    if (graph.vertex(edge.from).session == 0 && graph.vertex(edge.to).session == 0) {
+      active[e] = 1;
+      ++session_zero_edges;
+    }
+  }
+  std::vector<Pose2> estimate = graph.initial_estimate();
+  Optimizer<Pose2> optimizer;
+  const OptimizerSummary summary = optimizer.Solve(graph, active, &estimate);
+  REQUIRE(summary.termination == TerminationType::kConvergence);
+  CHECK(summary.num_components == 1);
+  CHECK(summary.num_active_edges == session_zero_edges);
+  const int session_zero_poses = static_cast<int>(graph.session(0).vertices.size());
+  CHECK(summary.free_parameters == Pose2::kDim * (session_zero_poses - 1));
+  for (int v : graph.session(1).vertices) {
+    CHECK((graph.initial_estimate()[v].Inverse() * estimate[v]).Log().norm() == 0.0);
+  }
 }
 
 TEST_CASE("The symbolic analysis is reused while the pattern is unchanged", "[optimizer]") {

@@ -33,7 +33,7 @@ typename Pose::Matrix InformationFor(const SyntheticOptions& options) {
   }
   typename Pose::Tangent information = sigma.cwiseProduct(sigma).cwiseInverse();
   if constexpr (Pose::kDim == 6) information.template tail<3>() *= 4.0;
-  return information.asDiagonal();
+  return (options.information_scale * information).asDiagonal();
 }
 
 template <class Pose>
