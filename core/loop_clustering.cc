@@ -5,15 +5,10 @@
 
 namespace irrr {
 
-LoopClusterer::LoopClusterer(double time_gap) : time_gap_(time_gap) {
-  IRRR_CHECK(time_gap >= 0.0);
-}
+LoopClusterer::LoopClusterer(double time_gap) : time_gap_(time_gap) { IRRR_CHECK(time_gap >= 0.0); }
 
-int LoopClusterer::AddLink(int link_id,
-                           int session_1,
-                           double stamp_1,
-                           int session_2,
-                           double stamp_2) {
+int LoopClusterer::AddLink(
+    int link_id, int session_1, double stamp_1, int session_2, double stamp_2) {
   IRRR_CHECK(session_1 >= 0 && session_2 >= 0);
   // Orient: side a is the higher session, or the later pose of one session.
   const bool swap = session_2 > session_1 || (session_2 == session_1 && stamp_2 > stamp_1);
@@ -27,7 +22,8 @@ int LoopClusterer::AddLink(int link_id,
     const LoopCluster& c = clusters_[index];
     if (c.session_a != session_a || c.session_b != session_b) continue;
     for (size_t m = 0; m < c.links.size(); ++m) {
-      if (std::abs(t_a - c.stamps_a[m]) <= time_gap_ && std::abs(t_b - c.stamps_b[m]) <= time_gap_) {
+      if (std::abs(t_a - c.stamps_a[m]) <= time_gap_ &&
+          std::abs(t_b - c.stamps_b[m]) <= time_gap_) {
         chosen = index;
         break;
       }

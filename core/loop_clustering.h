@@ -20,12 +20,12 @@
 namespace irrr {
 
 struct LoopCluster {
-  int session_a = -1;       // session of the "a" side (higher session index, or the same session)
+  int session_a = -1;  // session of the "a" side (higher session index, or the same session)
   int session_b = -1;
-  std::vector<int> links;   // the caller's link ids, in arrival order
+  std::vector<int> links;        // the caller's link ids, in arrival order
   std::vector<double> stamps_a;  // per link, stamp of its "a" pose
   std::vector<double> stamps_b;
-  double newest_a = 0.0;    // largest member stamp on each side
+  double newest_a = 0.0;  // largest member stamp on each side
   double newest_b = 0.0;
   bool closed = false;
 

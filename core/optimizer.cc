@@ -247,7 +247,8 @@ OptimizerSummary Optimizer<Pose>::Solve(const PoseGraph<Pose>& graph,
   {
     std::vector<char> in_problem(n, 0);
     for (int e = 0; e < graph.num_edges(); ++e) {
-      if (EdgeIsActive(active, e)) in_problem[graph.edge(e).from] = in_problem[graph.edge(e).to] = 1;
+      if (EdgeIsActive(active, e))
+        in_problem[graph.edge(e).from] = in_problem[graph.edge(e).to] = 1;
     }
     for (char flag : in_problem) touched += flag;
   }

@@ -78,9 +78,10 @@ class Optimizer {
   explicit Optimizer(const OptimizerOptions& options = OptimizerOptions()) : options_(options) {}
 
   // Minimises D^2 over the edges with active[e] != 0 (one entry per graph edge, odometry
-  // included: a caller that wants only some sessions leaves the others' odometry out). `estimate` holds one pose per vertex on entry and the result on return; it is
-  // changed only by accepted steps, so on failure it holds the last good iterate (see
-  // estimate_updated). Options must be valid and sizes must match (checked, aborts otherwise).
+  // included: a caller that wants only some sessions leaves the others' odometry out). `estimate`
+  // holds one pose per vertex on entry and the result on return; it is changed only by accepted
+  // steps, so on failure it holds the last good iterate (see estimate_updated). Options must be
+  // valid and sizes must match (checked, aborts otherwise).
   OptimizerSummary Solve(const PoseGraph<Pose>& graph,
                          const std::vector<char>& active,
                          std::vector<Pose>* estimate);
@@ -112,8 +113,8 @@ template <class Pose>
 double EdgeChi2(const Edge<Pose>& edge, const std::vector<Pose>& estimate);
 
 // The connected component of every session for an active set: active edges between two sessions
-// join them (a session with no active edge is a component of its own). Components are numbered 0, 1, ... in the
-// order of their earliest session.
+// join them (a session with no active edge is a component of its own). Components are numbered 0,
+// 1, ... in the order of their earliest session.
 template <class Pose>
 std::vector<int> SessionComponents(const PoseGraph<Pose>& graph, const std::vector<char>& active);
 

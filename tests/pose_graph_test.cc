@@ -127,7 +127,8 @@ void RequireAddLoopFails(PoseGraph<Pose>* graph,
                          const std::vector<std::string>& key_words) {
   const GraphSize before(*graph);
   int edge_index = -123;
-  const Status status = graph->AddLoop(from_vertex, to_vertex, measurement, information, &edge_index);
+  const Status status =
+      graph->AddLoop(from_vertex, to_vertex, measurement, information, &edge_index);
   INFO("message: " << status.message());
   REQUIRE(!status.ok());
   for (const std::string& word : key_words) CHECK_THAT(status.message(), Contains(word));
@@ -153,10 +154,11 @@ TEMPLATE_TEST_CASE("AddSession rejects a duplicate id, naming it", "[pose_graph]
 
 // ---- AddPose ----
 
-TEMPLATE_TEST_CASE("AddPose rejects invalid input, naming the vertex, and leaves the graph unchanged",
-                   "[pose_graph]",
-                   Pose2,
-                   Pose3) {
+TEMPLATE_TEST_CASE(
+    "AddPose rejects invalid input, naming the vertex, and leaves the graph unchanged",
+    "[pose_graph]",
+    Pose2,
+    Pose3) {
   using Pose = TestType;
   using Matrix = typename Pose::Matrix;
   PoseGraph<Pose> graph = SmallGraph<Pose>();
@@ -281,11 +283,12 @@ TEST_CASE("AddPose rejects a Pose3 with a non-unit quaternion", "[pose_graph]") 
 
 // ---- AddLoop ----
 
-TEMPLATE_TEST_CASE("AddLoop rejects invalid input, naming both vertices, and leaves the graph "
-                   "unchanged",
-                   "[pose_graph]",
-                   Pose2,
-                   Pose3) {
+TEMPLATE_TEST_CASE(
+    "AddLoop rejects invalid input, naming both vertices, and leaves the graph "
+    "unchanged",
+    "[pose_graph]",
+    Pose2,
+    Pose3) {
   using Pose = TestType;
   using Matrix = typename Pose::Matrix;
   PoseGraph<Pose> graph = SmallGraph<Pose>();
@@ -305,12 +308,8 @@ TEMPLATE_TEST_CASE("AddLoop rejects invalid input, naming both vertices, and lea
     Matrix indefinite = Matrix::Identity();
     indefinite(2, 2) = -1.0;
     // Index 0 is vertex 10, index 2 is vertex 20.
-    RequireAddLoopFails(&graph,
-                        0,
-                        2,
-                        measurement,
-                        indefinite,
-                        {"vertex 10", "vertex 20", "not positive definite"});
+    RequireAddLoopFails(
+        &graph, 0, 2, measurement, indefinite, {"vertex 10", "vertex 20", "not positive definite"});
   }
   SECTION("asymmetric or non-finite information") {
     Matrix asymmetric = Matrix::Identity() * 2.0;
@@ -346,11 +345,12 @@ TEST_CASE("AddLoop rejects a Pose3 measurement with a non-unit quaternion", "[po
 
 // ---- Valid building ----
 
-TEMPLATE_TEST_CASE("A graph of two sessions with interleaved poses keeps sessions, edges and "
-                   "lookups consistent",
-                   "[pose_graph]",
-                   Pose2,
-                   Pose3) {
+TEMPLATE_TEST_CASE(
+    "A graph of two sessions with interleaved poses keeps sessions, edges and "
+    "lookups consistent",
+    "[pose_graph]",
+    Pose2,
+    Pose3) {
   using Pose = TestType;
   using Matrix = typename Pose::Matrix;
   PoseGraph<Pose> graph;
@@ -546,7 +546,8 @@ TEMPLATE_TEST_CASE("OdometryEstimate equals the product of each session's odomet
     const int s = pick_session(rng);
     const Pose step = MakePose<Pose>(uniform(rng), uniform(rng), 3.0 * uniform(rng));
     const Pose* odometry = session_started[s] ? &step : nullptr;
-    REQUIRE(graph.AddPose(s, i, i, step, odometry, odometry ? &information : nullptr, nullptr).ok());
+    REQUIRE(
+        graph.AddPose(s, i, i, step, odometry, odometry ? &information : nullptr, nullptr).ok());
     session_end[s] = session_started[s] ? Pose(session_end[s] * step) : Pose();
     session_started[s] = true;
     expected.push_back(session_end[s]);

@@ -25,7 +25,7 @@ constexpr double kLargeTranslationJacobianTolerance = 1e-5;
 // Residual rotations are kept below this so that central differences never straddle the chart's
 // discontinuity (SE(2) yaw wraps at +-pi; the SE(3) quaternion flips sign at qw = 0, i.e. at pi).
 constexpr double kMaxResidualAngleRad = 2.5;
-constexpr int kNumRandomJacobianCases = 2000;  // measurement/from/to triples per pose type
+constexpr int kNumRandomJacobianCases = 2000;   // measurement/from/to triples per pose type
 constexpr int kMinCheckedJacobianCases = 1000;  // after skipping residuals beyond the limit
 // Products, inverses and trigonometry of 10 m poses round at ~1e-15 relative; 1e-12 leaves room
 // for a few dozen operations.
@@ -47,13 +47,15 @@ template <class Pose>
 Pose MakePose(const Eigen::Vector3d& translation_m, const Eigen::Vector3d& rotation_vector);
 
 template <>
-Pose2 MakePose<Pose2>(const Eigen::Vector3d& translation_m, const Eigen::Vector3d& rotation_vector) {
+Pose2 MakePose<Pose2>(const Eigen::Vector3d& translation_m,
+                      const Eigen::Vector3d& rotation_vector) {
   return Pose2(translation_m.x(), translation_m.y(), rotation_vector.z());
 }
 
 // Built with Eigen's AngleAxis, independent of ExpSO3.
 template <>
-Pose3 MakePose<Pose3>(const Eigen::Vector3d& translation_m, const Eigen::Vector3d& rotation_vector) {
+Pose3 MakePose<Pose3>(const Eigen::Vector3d& translation_m,
+                      const Eigen::Vector3d& rotation_vector) {
   const double angle_rad = rotation_vector.norm();
   const Eigen::Vector3d axis =
       angle_rad > 0.0 ? Eigen::Vector3d(rotation_vector / angle_rad) : Eigen::Vector3d::UnitZ();
@@ -192,8 +194,7 @@ template <class Pose>
 void CheckJacobians(const Pose& measurement, const Pose& from, const Pose& to, double tolerance) {
   typename Pose::Matrix J_r_from;
   typename Pose::Matrix J_r_to;
-  const typename Pose::Tangent r =
-      RelativePoseResidual(measurement, from, to, &J_r_from, &J_r_to);
+  const typename Pose::Tangent r = RelativePoseResidual(measurement, from, to, &J_r_from, &J_r_to);
   const typename Pose::Tangent r_plain =
       RelativePoseResidual(measurement, from, to, nullptr, nullptr);
   const typename Pose::Matrix numeric_from =
@@ -270,11 +271,12 @@ TEMPLATE_TEST_CASE("Residual Jacobians equal central differences on thousands of
 
 // ---- 2. Jacobians at the edge cases ----
 
-TEMPLATE_TEST_CASE("Residual Jacobians equal central differences at identity, tiny and near-pi "
-                   "rotations and 1e4 m translations",
-                   "[pose]",
-                   Pose2,
-                   Pose3) {
+TEMPLATE_TEST_CASE(
+    "Residual Jacobians equal central differences at identity, tiny and near-pi "
+    "rotations and 1e4 m translations",
+    "[pose]",
+    Pose2,
+    Pose3) {
   using Pose = TestType;
   INFO(Pose::kName);
   const std::vector<double> from_angles = {
@@ -456,8 +458,7 @@ TEMPLATE_TEST_CASE("Random poses satisfy the group axioms and Retract composes o
     const Pose retracted = a.Retract(delta);
     CHECK(PoseDifference(retracted, a * TangentPose(delta)) <= kCompositionTolerance);
     CHECK((retracted.translation() -
-           (a.translation() +
-            a.rotation() * delta.template head<Pose::kTranslationDim>()))
+           (a.translation() + a.rotation() * delta.template head<Pose::kTranslationDim>()))
               .cwiseAbs()
               .maxCoeff() <= kCompositionTolerance);
     CHECK(PoseDifference(a.Retract(Pose::Tangent::Zero()), a) <= kCompositionTolerance);
@@ -528,11 +529,12 @@ TEST_CASE("NormalizeAngle keeps yaw in [-pi, pi]", "[pose]") {
 
 // ---- 6. The residual's value ----
 
-TEMPLATE_TEST_CASE("The residual is zero when to == from * measurement and otherwise equals the "
-                   "error vector of measurement^-1 * from^-1 * to",
-                   "[pose]",
-                   Pose2,
-                   Pose3) {
+TEMPLATE_TEST_CASE(
+    "The residual is zero when to == from * measurement and otherwise equals the "
+    "error vector of measurement^-1 * from^-1 * to",
+    "[pose]",
+    Pose2,
+    Pose3) {
   using Pose = TestType;
   const uint32_t seed = 14;
   INFO("seed " << seed << ", " << Pose::kName);
@@ -546,7 +548,8 @@ TEMPLATE_TEST_CASE("The residual is zero when to == from * measurement and other
               .cwiseAbs()
               .maxCoeff() <= kZeroResidualTolerance);
     const typename Pose::Tangent r = RelativePoseResidual(measurement, from, to, nullptr, nullptr);
-    const typename Pose::Tangent expected = (measurement.Inverse() * (from.Inverse() * to)).ErrorVector();
+    const typename Pose::Tangent expected =
+        (measurement.Inverse() * (from.Inverse() * to)).ErrorVector();
     CHECK(ResidualDifference(r, expected).cwiseAbs().maxCoeff() <= kCompositionTolerance);
   }
 }
@@ -572,9 +575,9 @@ TEST_CASE("ExpSO3 and LogSO3 round-trip, including 1e-9 rad and near pi", "[pose
     CHECK(q.w() >= 0.0);  // |phi| <= pi
     // Against Eigen's AngleAxis.
     const double theta = phi.norm();
-    const Eigen::Matrix3d expected =
-        theta > 0.0 ? Eigen::AngleAxisd(theta, phi / theta).toRotationMatrix()
-                    : Eigen::Matrix3d::Identity();
+    const Eigen::Matrix3d expected = theta > 0.0
+                                         ? Eigen::AngleAxisd(theta, phi / theta).toRotationMatrix()
+                                         : Eigen::Matrix3d::Identity();
     CHECK((q.toRotationMatrix() - expected).cwiseAbs().maxCoeff() <= kCompositionTolerance);
     const Eigen::Vector3d back = LogSO3(q);
     CHECK((back - phi).norm() <= kCompositionTolerance);
@@ -617,7 +620,8 @@ TEST_CASE("The SE(2) residual matches hand-computed values", "[pose]") {
   // the residual is zero (up to cos(pi/2) = 6e-17 in double).
   Pose2::Matrix J_r_from;
   Pose2::Matrix J_r_to;
-  const Pose2::Tangent zero = RelativePoseResidual(Pose2(1.0, 0.0, 0.0), from, to, nullptr, nullptr);
+  const Pose2::Tangent zero =
+      RelativePoseResidual(Pose2(1.0, 0.0, 0.0), from, to, nullptr, nullptr);
   CHECK(zero.cwiseAbs().maxCoeff() <= kHandComputedTolerance);
 
   // measurement (0.5, 0, 0.1): r_t = R(-0.1) ((1, 0) - (0.5, 0)) = (0.5 cos 0.1, -0.5 sin 0.1)
@@ -627,7 +631,7 @@ TEST_CASE("The SE(2) residual matches hand-computed values", "[pose]") {
   // J_r_to = [R(-0.1) R(-pi/2) R(pi/2) = R(-0.1), 0; 0 0 1].
   const Pose2 measurement(0.5, 0.0, 0.1);
   const Pose2::Tangent r = RelativePoseResidual(measurement, from, to, &J_r_from, &J_r_to);
-  const double c = 0.9950041652780258;  // cos 0.1
+  const double c = 0.9950041652780258;   // cos 0.1
   const double s = 0.09983341664682815;  // sin 0.1
   CHECK(r(0) == Approx(0.4975020826390129).margin(kHandComputedTolerance));
   CHECK(r(1) == Approx(-0.04991670832341408).margin(kHandComputedTolerance));
