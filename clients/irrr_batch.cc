@@ -63,7 +63,7 @@ int Run(const BatchArguments& args, FileFormat format) {
   int num_loops = 0;
   for (const Edge<Pose>& e : graph.edges()) num_loops += e.kind == EdgeKind::kLoop ? 1 : 0;
   fmt::print(
-      "input     {}: {} {} poses, {} sessions, {} odometry edges, {} loop hypotheses "
+      "input     {}: {} {} poses in {} session(s), {} odometry edges, {} loop hypotheses "
       "({:.3f} s to read)\n",
       args.input,
       Pose::kName,
