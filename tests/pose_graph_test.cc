@@ -256,7 +256,7 @@ TEMPLATE_TEST_CASE(
 
 TEST_CASE("AddPose rejects a Pose3 with a non-unit quaternion", "[pose_graph]") {
   PoseGraph<Pose3> graph = SmallGraph<Pose3>();
-  const Pose3::Matrix information = Pose3::Matrix::Identity();
+  const Pose3::Matrix information = Information<Pose3>();
   const Pose3 step = MakePose<Pose3>(1.0, 0.0, 0.1);
   const Pose3 not_a_rotation(Eigen::Quaterniond(2.0, 0.0, 0.0, 0.0), Eigen::Vector3d::Zero());
   RequireAddPoseFails(&graph,
@@ -470,7 +470,7 @@ TEST_CASE("An empty graph has nothing and finds nothing", "[pose_graph]") {
 TEST_CASE("OdometryEstimate chains SE(2) odometry from the identity per session, by hand",
           "[pose_graph]") {
   PoseGraph<Pose2> graph;
-  const Pose2::Matrix information = Pose2::Matrix::Identity();
+  const Pose2::Matrix information = Information<Pose2>();
   // Odometry (1, 0, pi/2) twice: (0, 0, 0) -> (1, 0, pi/2) -> (1, 1, pi).
   const Pose2 turn(1.0, 0.0, kPi / 2.0);
   // Initial estimates far from the dead reckoning, to show they are not used.
@@ -504,7 +504,7 @@ TEST_CASE("OdometryEstimate chains SE(2) odometry from the identity per session,
 TEST_CASE("OdometryEstimate chains SE(3) odometry from the identity per session, by hand",
           "[pose_graph]") {
   PoseGraph<Pose3> graph;
-  const Pose3::Matrix information = Pose3::Matrix::Identity();
+  const Pose3::Matrix information = Information<Pose3>();
   // 90 degrees about z with a 1 m step along x, twice: -> (1, 0, 0) facing +y -> (1, 1, 0)
   // facing -x (180 degrees about z).
   const double h = std::sqrt(0.5);
