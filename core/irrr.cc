@@ -1,0 +1,1110 @@
+#include "core/irrr.h"
+
+#include <algorithm>
+#include <cmath>
+#include <deque>
+#include <functional>
+
+#include <boost/math/distributions/chi_squared.hpp>
+
+namespace irrr {
+namespace {
+
+// The sets of Algorithms 1-3 over one graph, shared by the incremental engine and batch RRR.
+// Clusters are indices; each holds the links (graph edge indices) that survived Algorithm 1.
+template <class Pose>
+struct Consensus {
+  struct Solution {
+    OptimizerSummary summary;
+    std::vector<Pose> estimate;
+  };
+
+  const PoseGraph<Pose>* graph = nullptr;
+  const IrrrOptions* options = nullptr;
+  std::vector<LoopDecision>* decisions = nullptr;
+  // Per-session dead reckoning (each session from the identity), one pose per vertex.
+  const std::vector<Pose>* dead_reckoning = nullptr;
+  // Warm start for the joint tests (incremental only): the estimate of the previous step, whose
+  // sessions share a frame within each component `warm_group` (per session) names.
+  const std::vector<Pose>* warm = nullptr;
+  std::vector<int> warm_group;
+
+  std::vector<std::vector<int>> odometry_of_session;  // odometry edge indices per session
+  std::vector<std::vector<int>> links;                // per cluster: links still in it
+  std::vector<int> session_a;                         // per cluster: its two sessions
+  std::vector<int> session_b;
+  std::vector<char> in_r;  // passed Algorithm 1 (the paper's set R)
+  std::vector<char> in_good;
+  std::vector<char> in_reject;
+  // Per good cluster: the candidates Algorithm 2 eliminated while it was inconsistent too.
+  std::vector<std::vector<int>> opponents;
+  int step = 0;
+  int solves = 0;
+
+  int AddCluster(int a, int b) {
+    links.emplace_back();
+    session_a.push_back(a);
+    session_b.push_back(b);
+    in_r.push_back(0);
+    in_good.push_back(0);
+    in_reject.push_back(0);
+    opponents.emplace_back();
+    return static_cast<int>(links.size()) - 1;
+  }
+
+  double LinkThreshold() const { return ChiSquareQuantile(options->alpha, Pose::kDim); }
+
+  double GraphThreshold(const OptimizerSummary& summary) const {
+    const int rows = summary.residual_dimension;
+    const int dof = options->graph_dof == GraphDegreesOfFreedom::kResidualRows
+                        ? rows
+                        : rows - summary.free_parameters;
+    return ChiSquareQuantile(options->alpha, std::max(dof, 1));
+  }
+
+  void SetDecision(
+      int edge, LoopState state, double chi2, double threshold, std::vector<int>* changed) {
+    LoopDecision& d = (*decisions)[edge];
+    if (d.state != state) {
+      d.state = state;
+      d.step = step;
+      if (changed != nullptr) changed->push_back(edge);
+    }
+    d.chi2 = chi2;
+    d.threshold = threshold;
+  }
+
+  // Position of vertex v in its session's time order.
+  int PositionInSession(int v) const {
+    const std::vector<int>& vertices = graph->session(graph->vertex(v).session).vertices;
+    return static_cast<int>(std::lower_bound(vertices.begin(), vertices.end(), v) -
+                            vertices.begin());
+  }
+
+  // d^2 of a loop edge if its endpoints were at `from` and `to`.
+  static double LinkChi2(const Edge<Pose>& edge, const Pose& from, const Pose& to) {
+    const typename Pose::Tangent r =
+        RelativePoseResidual<Pose>(edge.measurement, from, to, nullptr, nullptr);
+    return r.dot(edge.information * r);
+  }
+
+  // Brings the frame groups that `loop_edges` join into one frame (the group of the earliest
+  // session), group by group in increasing group order. A group is placed through the link, among
+  // those joining it to the groups already placed, that the others agree with best: the one whose
+  // alignment minimises the sum of the links' d^2, each capped at kAlignmentCap x the per-link
+  // threshold. A single wrong link (the first of a cluster, say) therefore cannot set the frame
+  // of a session (algorithm-notes, "Tests": the other session's initial frame from a link).
+  void AlignGroups(const std::vector<int>& loop_edges,
+                   const std::vector<int>& group_of_session,
+                   std::vector<Pose>* x) const {
+    constexpr double kAlignmentCap = 10.0;
+    const double cap = kAlignmentCap * LinkThreshold();
+    auto group_of = [&](int v) { return group_of_session[graph->vertex(v).session]; };
+    std::vector<int> groups;
+    for (int e : loop_edges) {
+      groups.push_back(group_of(graph->edge(e).from));
+      groups.push_back(group_of(graph->edge(e).to));
+    }
+    std::sort(groups.begin(), groups.end());
+    groups.erase(std::unique(groups.begin(), groups.end()), groups.end());
+    if (groups.size() < 2) return;
+    std::vector<char> placed(group_of_session.size(), 0);
+    // Groups connect only through links, so each connected set of groups gets its own root.
+    for (int root : groups) {
+      if (placed[root]) continue;
+      placed[root] = 1;
+      while (true) {
+        // The smallest unplaced group joined to a placed one, and the links joining them.
+        int next = -1;
+        for (int e : loop_edges) {
+          const int a = group_of(graph->edge(e).from);
+          const int b = group_of(graph->edge(e).to);
+          if (placed[a] != placed[b]) {
+            const int unplaced = placed[a] ? b : a;
+            if (next < 0 || unplaced < next) next = unplaced;
+          }
+        }
+        if (next < 0) break;
+        std::vector<Pose> frame_T_next;  // per candidate link, the alignment it implies
+        std::vector<int> candidates;
+        for (int e : loop_edges) {
+          const Edge<Pose>& edge = graph->edge(e);
+          const int a = group_of(edge.from);
+          const int b = group_of(edge.to);
+          if (!((a == next && placed[b]) || (b == next && placed[a]))) continue;
+          candidates.push_back(e);
+          // x_from * measurement = x_to must hold once `next` is moved by the alignment.
+          frame_T_next.push_back(
+              b == next ? (*x)[edge.from] * edge.measurement * (*x)[edge.to].Inverse()
+                        : (*x)[edge.to] * edge.measurement.Inverse() * (*x)[edge.from].Inverse());
+        }
+        int best = 0;
+        double best_cost = std::numeric_limits<double>::infinity();
+        for (size_t j = 0; j < candidates.size(); ++j) {
+          double cost = 0.0;
+          for (int e : candidates) {
+            const Edge<Pose>& edge = graph->edge(e);
+            const bool to_moves = group_of(edge.to) == next;
+            const Pose from = to_moves ? (*x)[edge.from] : frame_T_next[j] * (*x)[edge.from];
+            const Pose to = to_moves ? frame_T_next[j] * (*x)[edge.to] : (*x)[edge.to];
+            cost += std::min(LinkChi2(edge, from, to), cap);
+          }
+          if (cost < best_cost) {
+            best_cost = cost;
+            best = static_cast<int>(j);
+          }
+        }
+        for (int s = 0; s < graph->num_sessions(); ++s) {
+          if (group_of_session[s] != next) continue;
+          for (int v : graph->session(s).vertices) (*x)[v] = frame_T_next[best] * (*x)[v];
+        }
+        placed[next] = 1;
+      }
+    }
+  }
+
+  // Optimizes the odometry of `sessions` plus the links of `clusters` (the paper's PoseGraphIC,
+  // PoseGraphPR or PoseGraphJC). Returns a summary whose edge_chi2 is indexed like the graph and
+  // whose chi2, residual_dimension and free_parameters are those of the whole problem, so the
+  // graph test means what the paper says.
+  //
+  // Locality: a stretch of odometry that no loop closes (before the first or after the last loop
+  // endpoint of a session) has zero residual at the optimum, so only each session's span between
+  // its first and last loop endpoint is optimized (options->local_problems). The start is the
+  // dead reckoning of each session, or with `warm` the caller's estimate (whose frame groups are
+  // the sessions' components in `warm_group`); groups joined by links are then aligned through
+  // their most agreed-on link. With `estimate`, the complete optimum of `sessions` is returned
+  // (the unlooped stretches chained along their odometry), each component in the frame of its
+  // earliest session's first pose; other vertices are copied from `base`.
+  Solution Solve(const std::vector<char>& sessions,
+                 const std::vector<int>& clusters,
+                 bool use_warm,
+                 const std::vector<Pose>* base = nullptr) {
+    ++solves;
+    const int num_sessions = graph->num_sessions();
+    std::vector<int> loop_edges;
+    for (int c : clusters) loop_edges.insert(loop_edges.end(), links[c].begin(), links[c].end());
+    const bool warm_start = use_warm && warm != nullptr && options->warm_start;
+
+    // Span of each session: first and last position in the problem (-1: none).
+    std::vector<int> first(num_sessions, -1);
+    std::vector<int> last(num_sessions, -1);
+    auto extend = [&](int v) {
+      const int s = graph->vertex(v).session;
+      const int position = PositionInSession(v);
+      first[s] = first[s] < 0 ? position : std::min(first[s], position);
+      last[s] = std::max(last[s], position);
+    };
+    for (int e : loop_edges) {
+      extend(graph->edge(e).from);
+      extend(graph->edge(e).to);
+    }
+    if (!options->local_problems) {
+      for (int s = 0; s < num_sessions; ++s) {
+        if (!sessions[s] || first[s] < 0) continue;
+        first[s] = 0;
+        last[s] = static_cast<int>(graph->session(s).vertices.size()) - 1;
+      }
+    }
+
+    // Start: warm estimate or per-session dead reckoning, then frame groups aligned.
+    std::vector<Pose> x = warm_start ? *warm : *dead_reckoning;
+    x.resize(graph->num_vertices());
+    std::vector<int> group_of_session(num_sessions);
+    for (int s = 0; s < num_sessions; ++s) group_of_session[s] = warm_start ? warm_group[s] : s;
+    AlignGroups(loop_edges, group_of_session, &x);
+
+    // The subproblem: one sub-session per span, then the loops.
+    PoseGraph<Pose> sub;
+    std::vector<int> sub_vertex(graph->num_vertices(), -1);
+    std::vector<int> graph_edge_of_sub;
+    std::vector<Pose> sub_x;
+    for (int s = 0; s < num_sessions; ++s) {
+      if (!sessions[s] || first[s] < 0) continue;
+      int sub_session = -1;
+      IRRR_CHECK(sub.AddSession(s, &sub_session).ok());
+      const std::vector<int>& vertices = graph->session(s).vertices;
+      for (int k = first[s]; k <= last[s]; ++k) {
+        const int v = vertices[k];
+        const Edge<Pose>* odometry =
+            k > first[s] ? &graph->edge(odometry_of_session[s][k - 1]) : nullptr;
+        if (odometry != nullptr) graph_edge_of_sub.push_back(odometry_of_session[s][k - 1]);
+        IRRR_CHECK(sub.AddPose(sub_session,
+                               v,
+                               graph->vertex(v).stamp,
+                               x[v],
+                               odometry ? &odometry->measurement : nullptr,
+                               odometry ? &odometry->information : nullptr,
+                               &sub_vertex[v])
+                       .ok());
+        sub_x.push_back(x[v]);
+      }
+    }
+    for (int e : loop_edges) {
+      const Edge<Pose>& edge = graph->edge(e);
+      IRRR_CHECK(sub_vertex[edge.from] >= 0 && sub_vertex[edge.to] >= 0);
+      IRRR_CHECK(sub.AddLoop(sub_vertex[edge.from],
+                             sub_vertex[edge.to],
+                             edge.measurement,
+                             edge.information,
+                             nullptr)
+                     .ok());
+      graph_edge_of_sub.push_back(e);
+    }
+
+    Solution solution;
+    Optimizer<Pose> optimizer(options->optimizer);
+    OptimizerSummary& summary = solution.summary;
+    summary = optimizer.Solve(sub, std::vector<char>(sub.num_edges(), 1), &sub_x);
+    std::vector<double> edge_chi2(graph->num_edges(), 0.0);
+    for (int k = 0; k < sub.num_edges(); ++k)
+      edge_chi2[graph_edge_of_sub[k]] = summary.edge_chi2[k];
+    summary.edge_chi2 = std::move(edge_chi2);
+
+    // The whole problem's dimensions: every odometry edge of `sessions` and the loops; every
+    // pose of `sessions` free but one per component.
+    int odometry_edges = 0;
+    int poses = 0;
+    std::vector<char> active_loops(graph->num_edges(), 0);
+    for (int e : loop_edges) active_loops[e] = 1;
+    const std::vector<int> component = SessionComponents(*graph, active_loops);
+    std::vector<char> component_seen(num_sessions, 0);
+    int components = 0;
+    for (int s = 0; s < num_sessions; ++s) {
+      if (!sessions[s]) continue;
+      odometry_edges += static_cast<int>(odometry_of_session[s].size());
+      poses += static_cast<int>(graph->session(s).vertices.size());
+      if (!component_seen[component[s]]) {
+        component_seen[component[s]] = 1;
+        ++components;
+      }
+    }
+    summary.num_active_edges = odometry_edges + static_cast<int>(loop_edges.size());
+    summary.residual_dimension = Pose::kDim * summary.num_active_edges;
+    summary.free_parameters = Pose::kDim * (poses - components);
+    summary.num_components = components;
+
+    if (base != nullptr) {
+      solution.estimate = *base;
+      solution.estimate.resize(graph->num_vertices());
+      for (int s = 0; s < num_sessions; ++s) {
+        if (!sessions[s]) continue;
+        const std::vector<int>& vertices = graph->session(s).vertices;
+        const std::vector<int>& odometry = odometry_of_session[s];
+        const int n = static_cast<int>(vertices.size());
+        if (first[s] < 0) {
+          // No loop: the session keeps its own frame, along its odometry.
+          for (int k = 0; k < n; ++k)
+            solution.estimate[vertices[k]] = (*dead_reckoning)[vertices[k]];
+          continue;
+        }
+        for (int k = first[s]; k <= last[s]; ++k) {
+          solution.estimate[vertices[k]] = sub_x[sub_vertex[vertices[k]]];
+        }
+        for (int k = first[s] - 1; k >= 0; --k) {
+          solution.estimate[vertices[k]] =
+              solution.estimate[vertices[k + 1]] * graph->edge(odometry[k]).measurement.Inverse();
+        }
+        for (int k = last[s] + 1; k < n; ++k) {
+          solution.estimate[vertices[k]] =
+              solution.estimate[vertices[k - 1]] * graph->edge(odometry[k - 1]).measurement;
+        }
+      }
+      // Gauge: each component in the frame of its earliest session's first pose.
+      std::vector<char> anchored(num_sessions, 0);
+      for (int s = 0; s < num_sessions; ++s) {
+        if (!sessions[s] || anchored[component[s]]) continue;
+        anchored[component[s]] = 1;
+        const Pose origin_T_anchor =
+            solution.estimate[graph->session(s).vertices.front()].Inverse();
+        for (int t = s; t < num_sessions; ++t) {
+          if (!sessions[t] || component[t] != component[s]) continue;
+          for (int v : graph->session(t).vertices) {
+            solution.estimate[v] = origin_T_anchor * solution.estimate[v];
+          }
+        }
+      }
+    }
+    return solution;
+  }
+
+  std::vector<char> SessionsOf(const std::vector<int>& clusters) const {
+    std::vector<char> sessions(graph->num_sessions(), 0);
+    for (int c : clusters) sessions[session_a[c]] = sessions[session_b[c]] = 1;
+    return sessions;
+  }
+
+  bool Within(const std::vector<char>& sessions, int c) const {
+    return sessions[session_a[c]] && sessions[session_b[c]];
+  }
+
+  // Algorithm 1: optimize odometry plus cluster c alone; the graph test decides for the cluster,
+  // then the per-link test removes the links that fail it. Returns whether links remain.
+  bool IntraCluster(int c, std::vector<int>* changed) {
+    const double link_threshold = LinkThreshold();
+    bool checked_individually = false;
+    std::vector<std::pair<double, int>> set_aside;  // (chi2 when set aside, link)
+    while (!links[c].empty()) {
+      const Solution solution = Solve(SessionsOf({c}), {c}, false);
+      const OptimizerSummary& summary = solution.summary;
+      const double graph_threshold = GraphThreshold(summary);
+      if (summary.IsSolutionUsable() && summary.final_chi2 < graph_threshold &&
+          options->prune_failing_clusters) {
+        // A wrong link (or a group of them) bends the optimum and can push true links over the
+        // per-link threshold: set every failing link aside, judge the rest again without them,
+        // and afterwards re-admit each set-aside link that fits the consistent rest.
+        std::vector<int> kept;
+        for (int e : links[c]) {
+          if (summary.edge_chi2[e] < link_threshold) {
+            kept.push_back(e);
+          } else {
+            SetDecision(
+                e, LoopState::kRejectedLinkTest, summary.edge_chi2[e], link_threshold, changed);
+            set_aside.push_back({summary.edge_chi2[e], e});
+          }
+        }
+        if (kept.size() < links[c].size()) {
+          links[c] = kept;
+          continue;
+        }
+      }
+      if (summary.IsSolutionUsable() && summary.final_chi2 < graph_threshold) {
+        std::vector<int> kept;
+        for (int e : links[c]) {
+          const double chi2 = summary.edge_chi2[e];
+          if (chi2 < link_threshold) {
+            kept.push_back(e);
+            SetDecision(e, LoopState::kPending, chi2, link_threshold, changed);
+          } else {
+            SetDecision(e, LoopState::kRejectedLinkTest, chi2, link_threshold, changed);
+          }
+        }
+        links[c] = kept;
+        break;
+      }
+      if (!options->prune_failing_clusters || links[c].size() == 1 || !summary.IsSolutionUsable()) {
+        for (int e : links[c]) {
+          SetDecision(
+              e, LoopState::kRejectedClusterTest, summary.final_chi2, graph_threshold, changed);
+        }
+        links[c].clear();
+        break;
+      }
+      if (!checked_individually) {
+        // A wrong link distorts the joint optimum, so its chi2 does not reliably single it out:
+        // first test every link alone with odometry, and keep those consistent on their own.
+        checked_individually = true;
+        const std::vector<int> members = links[c];
+        std::vector<int> kept;
+        for (int e : members) {
+          links[c] = {e};
+          const Solution alone = Solve(SessionsOf({c}), {c}, false);
+          const double chi2 = alone.summary.edge_chi2[e];
+          if (alone.summary.IsSolutionUsable() &&
+              alone.summary.final_chi2 < GraphThreshold(alone.summary) && chi2 < link_threshold) {
+            kept.push_back(e);
+          } else {
+            SetDecision(e, LoopState::kRejectedLinkTest, chi2, link_threshold, changed);
+          }
+        }
+        links[c] = kept;
+        continue;
+      }
+      // Still inconsistent together: among the links of largest chi2 (as many as
+      // elimination_lookahead), drop the one without which the others fit best (the largest chi2
+      // at the joint optimum may belong to a true link that a wrong one bent).
+      const std::vector<int> members = links[c];
+      std::vector<int> suspects = members;
+      std::sort(suspects.begin(), suspects.end(), [&summary](int a, int b) {
+        return summary.edge_chi2[a] > summary.edge_chi2[b];
+      });
+      suspects.resize(std::min<size_t>(suspects.size(), options->elimination_lookahead));
+      int worst = -1;
+      double best_rest = std::numeric_limits<double>::infinity();
+      for (int e : suspects) {
+        links[c].clear();
+        for (int other : members) {
+          if (other != e) links[c].push_back(other);
+        }
+        const Solution rest = Solve(SessionsOf({c}), {c}, false);
+        const double normalized = rest.summary.final_chi2 / GraphThreshold(rest.summary);
+        if (rest.summary.IsSolutionUsable() && normalized < best_rest) {
+          best_rest = normalized;
+          worst = e;
+        }
+      }
+      links[c] = members;
+      if (worst < 0) worst = members.front();
+      SetDecision(
+          worst, LoopState::kRejectedLinkTest, summary.edge_chi2[worst], link_threshold, changed);
+      links[c].erase(std::find(links[c].begin(), links[c].end(), worst));
+      set_aside.push_back({summary.edge_chi2[worst], worst});
+    }
+    if (!links[c].empty() && !set_aside.empty()) Readmit(c, set_aside, changed);
+    in_r[c] = links[c].empty() ? 0 : 1;
+    bool survived = in_r[c] != 0;
+    if (survived && options->split_failing_links) {
+      // Beyond the paper: the links that left a surviving cluster may be a consistent group of
+      // their own (a wrong group clustered in time with true loops, or the reverse); they become
+      // a new cluster, judged by Algorithm 1 like any other.
+      std::vector<int> left;
+      for (const auto& [unused, e] : set_aside) {
+        if (std::find(links[c].begin(), links[c].end(), e) == links[c].end()) left.push_back(e);
+      }
+      if (!left.empty()) {
+        std::sort(left.begin(), left.end());
+        const int split = AddCluster(session_a[c], session_b[c]);
+        links[split] = left;
+        for (int e : left) (*decisions)[e].cluster = split;
+        survived = IntraCluster(split, changed) || survived;
+      }
+    }
+    return survived;
+  }
+
+  // Tries the set-aside links of cluster c one by one (most plausible first) against its
+  // consistent links; a link that passes the per-link test without making the graph test or any
+  // member fail joins the cluster again.
+  void Readmit(int c, std::vector<std::pair<double, int>> set_aside, std::vector<int>* changed) {
+    const double link_threshold = LinkThreshold();
+    std::sort(set_aside.begin(), set_aside.end());
+    for (const auto& [unused, e] : set_aside) {
+      links[c].push_back(e);
+      const Solution trial = Solve(SessionsOf({c}), {c}, false);
+      bool fits = trial.summary.IsSolutionUsable() &&
+                  trial.summary.final_chi2 < GraphThreshold(trial.summary);
+      for (int member : links[c]) {
+        fits = fits && trial.summary.edge_chi2[member] < link_threshold;
+      }
+      if (fits) {
+        for (int member : links[c]) {
+          SetDecision(member,
+                      LoopState::kPending,
+                      trial.summary.edge_chi2[member],
+                      link_threshold,
+                      changed);
+        }
+      } else {
+        links[c].pop_back();
+      }
+    }
+  }
+
+  // Consistency index of cluster c at a solution: D_C^2(c) / chi2(alpha, kDim * |c|).
+  double ConsistencyIndex(int c,
+                          const OptimizerSummary& summary,
+                          double* chi2,
+                          double* threshold) const {
+    *chi2 = 0.0;
+    for (int e : links[c]) *chi2 += summary.edge_chi2[e];
+    *threshold =
+        ChiSquareQuantile(options->alpha, Pose::kDim * static_cast<double>(links[c].size()));
+    return *chi2 / *threshold;
+  }
+
+  struct JointTest {
+    bool pass = false;
+    std::vector<std::pair<double, int>> by_index;  // (consistency index, cluster) of eligibles
+  };
+
+  bool WarmStartable() const { return warm != nullptr && options->warm_start; }
+
+  // Algorithm 2's tests at a joint optimum of the clusters `tested`: D_C^2 < chi2(alpha, d_C) and
+  // D_G^2 < chi2(alpha, d_G) (and, beyond the paper, every cluster's consistency index below 1).
+  JointTest Judge(const std::vector<int>& tested,
+                  const OptimizerSummary& summary,
+                  bool incremental) const {
+    JointTest test;
+    double cluster_chi2 = 0.0;
+    double num_links = 0.0;
+    bool each_consistent = true;
+    for (int c : tested) {
+      double chi2;
+      double threshold;
+      const double index = ConsistencyIndex(c, summary, &chi2, &threshold);
+      cluster_chi2 += chi2;
+      num_links += static_cast<double>(links[c].size());
+      each_consistent = each_consistent && index < 1.0;
+      if (incremental || !in_good[c]) test.by_index.push_back({index, c});
+    }
+    const double cluster_threshold = ChiSquareQuantile(options->alpha, Pose::kDim * num_links);
+    test.pass = summary.IsSolutionUsable() && cluster_chi2 < cluster_threshold &&
+                summary.final_chi2 < GraphThreshold(summary) &&
+                (!options->require_each_cluster_consistent || each_consistent);
+    return test;
+  }
+
+  // Algorithm 2 (written as a loop instead of the paper's tail recursion): optimize good and
+  // candidate clusters together; accept all of them if the joint tests pass, otherwise drop the
+  // cluster with the largest consistency index and try again. In the incremental version members
+  // of the good set may be dropped too (III.B). Dropped clusters go to `rejected`.
+  void InterCluster(const std::vector<char>& sessions,
+                    std::vector<int> candidate,
+                    bool incremental,
+                    std::vector<int>* rejected,
+                    std::vector<int>* changed) {
+    std::vector<char> revived(links.size(), 0);
+    while (!candidate.empty()) {
+      std::vector<int> good;
+      for (int c = 0; c < static_cast<int>(in_good.size()); ++c) {
+        if (in_good[c] && Within(sessions, c)) good.push_back(c);
+      }
+      std::vector<int> tested = good;
+      tested.insert(tested.end(), candidate.begin(), candidate.end());
+      // Joint tests start warm (the previous step's estimate); a failure is confirmed from dead
+      // reckoning, since a warm start bent by a cluster that is about to go can end in a wrong
+      // local minimum (seen on the 3D helix).
+      Solution solution = Solve(sessions, tested, true);
+      JointTest test = Judge(tested, solution.summary, incremental);
+      if (!test.pass && WarmStartable()) {
+        solution = Solve(sessions, tested, false);
+        test = Judge(tested, solution.summary, incremental);
+      }
+      const OptimizerSummary& summary = solution.summary;
+      const bool pass = test.pass;
+      std::vector<std::pair<double, int>>& by_index = test.by_index;
+      if (pass) {
+        const double link_threshold = LinkThreshold();
+        for (int c : tested) {
+          in_good[c] = 1;
+          for (int e : links[c]) {
+            SetDecision(e, LoopState::kAccepted, summary.edge_chi2[e], link_threshold, changed);
+          }
+        }
+        return;
+      }
+      IRRR_CHECK(!by_index.empty());
+      std::sort(by_index.begin(), by_index.end(), std::greater<>());
+      int worst = by_index.front().second;
+      // Beyond the paper: a wrong cluster bends the joint optimum, and a true cluster next to it
+      // can show the larger index. Each of the few largest is left out in turn. If leaving out
+      // some of them makes the rest pass Algorithm 2's tests, the one with the fewest links goes
+      // (the largest consistent set wins: a small wrong group accepted early must not outvote a
+      // large true cluster); otherwise the one whose absence leaves the rest most consistent
+      // (normalized D_C^2 of the rest).
+      const int lookahead =
+          std::min<int>(options->elimination_lookahead, static_cast<int>(by_index.size()));
+      if (lookahead > 1) {
+        double best_score = std::numeric_limits<double>::infinity();
+        bool best_passes = false;
+        size_t best_links = 0;
+        for (int k = 0; k < lookahead; ++k) {
+          const int left_out = by_index[k].second;
+          std::vector<int> rest;
+          for (int c : tested) {
+            if (c != left_out) rest.push_back(c);
+          }
+          const Solution without = Solve(sessions, rest, false);
+          if (!without.summary.IsSolutionUsable()) continue;
+          double rest_chi2 = 0.0;
+          double rest_links = 0.0;
+          for (int c : rest) {
+            for (int e : links[c]) rest_chi2 += without.summary.edge_chi2[e];
+            rest_links += static_cast<double>(links[c].size());
+          }
+          const double score =
+              rest.empty() ? 0.0
+                           : rest_chi2 / ChiSquareQuantile(options->alpha, Pose::kDim * rest_links);
+          const bool passes = Judge(rest, without.summary, incremental).pass;
+          const size_t size = links[left_out].size();
+          const bool better =
+              passes != best_passes
+                  ? passes
+                  : (passes && size != best_links ? size < best_links : score < best_score);
+          if (k == 0 || better) {
+            best_score = score;
+            best_passes = passes;
+            best_links = size;
+            worst = left_out;
+          }
+        }
+      }
+      if (incremental && options->revive_opponents && !in_good[worst]) {
+        // Beyond the paper: a good cluster accepted on thin evidence (the first link between two
+        // sessions, say) makes every later true cluster there fail one at a time, and the reject
+        // set keeps them apart. When a candidate falls against good clusters that are themselves
+        // inconsistent, the earlier candidates that fell against the same good clusters are
+        // tested again together with it, so that the evidence adds up (each at most once a call).
+        bool any_revived = false;
+        for (int c : good) {
+          double chi2;
+          double threshold;
+          if (ConsistencyIndex(c, summary, &chi2, &threshold) < 1.0) continue;
+          for (int loser : opponents[c]) {
+            if (revived[loser] || in_good[loser] || !in_reject[loser] || links[loser].empty() ||
+                std::find(candidate.begin(), candidate.end(), loser) != candidate.end()) {
+              continue;
+            }
+            revived[loser] = 1;
+            in_reject[loser] = 0;
+            candidate.push_back(loser);
+            any_revived = true;
+          }
+          opponents[c].push_back(worst);
+        }
+        if (any_revived) continue;
+      }
+      double chi2;
+      double threshold;
+      ConsistencyIndex(worst, summary, &chi2, &threshold);
+      const LoopState state = in_good[worst] ? LoopState::kReversed : LoopState::kRejectedJointTest;
+      for (int e : links[worst]) SetDecision(e, state, chi2, threshold, changed);
+      in_good[worst] = 0;
+      candidate.erase(std::remove(candidate.begin(), candidate.end(), worst), candidate.end());
+      rejected->push_back(worst);
+    }
+  }
+
+  // Algorithm 3 over the clusters of R within `sessions`. Batch: the reject set is cleared
+  // whenever the good set grows. Incremental: it is never cleared.
+  void Algorithm3(const std::vector<char>& sessions, bool incremental, std::vector<int>* changed) {
+    const double link_threshold = LinkThreshold();
+    while (true) {
+      std::vector<int> current;
+      for (int c = 0; c < static_cast<int>(in_r.size()); ++c) {
+        if (in_r[c] && !in_good[c] && !in_reject[c] && Within(sessions, c)) current.push_back(c);
+      }
+      if (current.empty()) return;
+      // Line 8: the current set alone (algorithm-notes: not the good set).
+      const Solution solution = Solve(sessions, current, false);
+      std::vector<int> candidate;
+      for (int c : current) {
+        bool any = false;
+        for (int e : links[c]) any = any || solution.summary.edge_chi2[e] < link_threshold;
+        if (any && solution.summary.IsSolutionUsable()) candidate.push_back(c);
+      }
+      if (candidate.empty()) {
+        if (options->settle_undecided) {
+          // Beyond the paper: a cluster of R that never becomes a candidate (bent at the line-8
+          // optimum by the other clusters of the current set) would stay undecided, and in the
+          // incremental version bend every later line-8 optimization. Each is tested alone
+          // against the good set instead, so that every judged cluster ends good or rejected.
+          for (int c : current) {
+            std::vector<int> rejected;
+            InterCluster(sessions, {c}, incremental, &rejected, changed);
+            for (int r : rejected) in_reject[r] = 1;
+          }
+        }
+        return;
+      }
+      int good_before = 0;
+      for (int c = 0; c < static_cast<int>(in_good.size()); ++c) good_before += in_good[c];
+      std::vector<int> rejected;
+      InterCluster(sessions, candidate, incremental, &rejected, changed);
+      if (incremental && options->retry_within_step && rejected.size() >= 2) {
+        // Beyond the paper: a cluster eliminated while a wrong one was still in the test may have
+        // fallen because of it; those eliminated in this call get one more joint test against the
+        // good set that resulted (the batch version gets this by clearing the reject set).
+        std::vector<int> retried;
+        InterCluster(sessions, rejected, incremental, &retried, changed);
+        rejected = retried;
+      }
+      int good_after = 0;
+      for (int c = 0; c < static_cast<int>(in_good.size()); ++c) good_after += in_good[c];
+      if (!incremental && good_after > good_before) {
+        std::fill(in_reject.begin(), in_reject.end(), 0);
+      } else {
+        for (int c : rejected) in_reject[c] = 1;
+      }
+      // Batch RRR ends when a round neither grows the good set nor rejects anything new; the
+      // incremental version always removes candidates from the current set.
+      if (!incremental && good_after <= good_before && rejected.empty()) return;
+    }
+  }
+
+  std::vector<int> GoodWithin(const std::vector<char>& sessions) const {
+    std::vector<int> good;
+    for (int c = 0; c < static_cast<int>(in_good.size()); ++c) {
+      if (in_good[c] && Within(sessions, c)) good.push_back(c);
+    }
+    return good;
+  }
+};
+
+}  // namespace
+
+double ChiSquareQuantile(double alpha, double dof) {
+  return boost::math::quantile(boost::math::chi_squared(dof), alpha);
+}
+
+Status IrrrOptions::Validate() const {
+  if (!(alpha > 0.0 && alpha < 1.0)) return Status::Error("alpha must be in (0, 1)");
+  if (!(cluster_gap >= 0.0) || !std::isfinite(cluster_gap)) {
+    return Status::Error("cluster_gap must be a finite number >= 0");
+  }
+  if (elimination_lookahead < 1) return Status::Error("elimination_lookahead must be >= 1");
+  if (Status s = optimizer.Validate(); !s.ok()) return Status::Error("optimizer: " + s.message());
+  return Status::Ok();
+}
+
+const char* LoopStateName(LoopState state) {
+  switch (state) {
+    case LoopState::kPending:
+      return "pending";
+    case LoopState::kAccepted:
+      return "accepted";
+    case LoopState::kRejectedLinkTest:
+      return "rejected_link_test";
+    case LoopState::kRejectedClusterTest:
+      return "rejected_cluster_test";
+    case LoopState::kRejectedJointTest:
+      return "rejected_joint_test";
+    case LoopState::kReversed:
+      return "reversed";
+  }
+  return "unknown";
+}
+
+template <class Pose>
+struct Irrr<Pose>::State {
+  explicit State(const IrrrOptions& o) : options(o), clusterer(o.cluster_gap) {
+    consensus.graph = &graph;
+    consensus.options = &options;
+    consensus.decisions = &decisions;
+    consensus.dead_reckoning = &dead_reckoning;
+  }
+
+  // Records clusters that closed, in closing order.
+  void Closed(const std::vector<int>& clusters) {
+    closed.insert(closed.end(), clusters.begin(), clusters.end());
+  }
+
+  IrrrOptions options;
+  PoseGraph<Pose> graph;
+  LoopClusterer clusterer;
+  std::vector<LoopDecision> decisions;
+  std::vector<Pose> estimate;
+  std::vector<Pose> dead_reckoning;
+  std::vector<int> closed;
+  std::vector<int> consensus_of;  // consensus cluster of each clusterer cluster
+  size_t next_closed = 0;
+  Consensus<Pose> consensus;
+};
+
+template <class Pose>
+Irrr<Pose>::Irrr(const IrrrOptions& options) {
+  IRRR_CHECK(options.Validate().ok());
+  state_ = std::make_unique<State>(options);
+}
+
+template <class Pose>
+Irrr<Pose>::~Irrr() = default;
+
+template <class Pose>
+Status Irrr<Pose>::AddSession(int64_t session_id, int* session_index) {
+  int index = -1;
+  if (Status s = state_->graph.AddSession(session_id, &index); !s.ok()) return s;
+  state_->consensus.odometry_of_session.emplace_back();
+  if (session_index != nullptr) *session_index = index;
+  return Status::Ok();
+}
+
+template <class Pose>
+Status Irrr<Pose>::AddPose(int session,
+                           int64_t vertex_id,
+                           double stamp,
+                           const Pose* odometry,
+                           const Matrix* odometry_information,
+                           int* vertex_index) {
+  State& st = *state_;
+  // The new pose continues its session's current estimate (optimized or dead reckoning).
+  Pose initial;
+  Pose dead_reckoning;
+  if (session >= 0 && session < st.graph.num_sessions() && odometry != nullptr &&
+      !st.graph.session(session).vertices.empty()) {
+    const int previous = st.graph.session(session).vertices.back();
+    initial = st.estimate[previous] * *odometry;
+    dead_reckoning = st.dead_reckoning[previous] * *odometry;
+  }
+  const int edges_before = st.graph.num_edges();
+  int index = -1;
+  if (Status s = st.graph.AddPose(
+          session, vertex_id, stamp, initial, odometry, odometry_information, &index);
+      !s.ok()) {
+    return s;
+  }
+  st.estimate.push_back(initial);
+  st.dead_reckoning.push_back(dead_reckoning);
+  for (int e = edges_before; e < st.graph.num_edges(); ++e) {
+    st.decisions.emplace_back();
+    st.consensus.odometry_of_session[session].push_back(e);
+  }
+  st.Closed(st.clusterer.AdvanceSession(session, stamp));
+  if (vertex_index != nullptr) *vertex_index = index;
+  return Status::Ok();
+}
+
+template <class Pose>
+Status Irrr<Pose>::AddLoop(int from_vertex,
+                           int to_vertex,
+                           const Pose& measurement,
+                           const Matrix& information,
+                           int* edge_index) {
+  State& st = *state_;
+  int edge = -1;
+  if (Status s = st.graph.AddLoop(from_vertex, to_vertex, measurement, information, &edge);
+      !s.ok()) {
+    return s;
+  }
+  const Vertex& from = st.graph.vertex(from_vertex);
+  const Vertex& to = st.graph.vertex(to_vertex);
+  const int cluster = st.clusterer.AddLink(edge, from.session, from.stamp, to.session, to.stamp);
+  while (static_cast<int>(st.consensus_of.size()) <= cluster) {
+    const LoopCluster& c = st.clusterer.cluster(static_cast<int>(st.consensus_of.size()));
+    st.consensus_of.push_back(st.consensus.AddCluster(c.session_a, c.session_b));
+  }
+  st.consensus.links[st.consensus_of[cluster]].push_back(edge);
+  st.decisions.emplace_back();
+  st.decisions[edge].cluster = st.consensus_of[cluster];
+  if (edge_index != nullptr) *edge_index = edge;
+  return Status::Ok();
+}
+
+template <class Pose>
+Status Irrr<Pose>::EndSession(int session) {
+  if (session < 0 || session >= state_->graph.num_sessions()) {
+    return Status::Error("unknown session index " + std::to_string(session));
+  }
+  state_->Closed(state_->clusterer.EndSession(session));
+  return Status::Ok();
+}
+
+template <class Pose>
+void Irrr<Pose>::Flush() {
+  state_->Closed(state_->clusterer.CloseAll());
+}
+
+template <class Pose>
+bool Irrr<Pose>::HasPendingStep() const {
+  return state_->next_closed < state_->closed.size();
+}
+
+template <class Pose>
+StepResult Irrr<Pose>::RunStep() {
+  IRRR_CHECK(HasPendingStep());
+  State& st = *state_;
+  Consensus<Pose>& consensus = st.consensus;
+  const int cluster = st.consensus_of[st.closed[st.next_closed++]];
+  StepResult result;
+  result.step = consensus.step;
+  result.cluster = cluster;
+  consensus.solves = 0;
+
+  if (consensus.IntraCluster(cluster, &result.changed_loops)) {
+    // The components (under the current good set) that the cluster touches.
+    const std::vector<int> component = Components();
+    consensus.warm = &st.estimate;
+    consensus.warm_group = component;
+    std::vector<char> sessions(st.graph.num_sessions(), 0);
+    for (int s = 0; s < st.graph.num_sessions(); ++s) {
+      sessions[s] = component[s] == component[consensus.session_a[cluster]] ||
+                    component[s] == component[consensus.session_b[cluster]];
+    }
+    consensus.Algorithm3(sessions, /*incremental=*/true, &result.changed_loops);
+    const auto solution =
+        consensus.Solve(sessions, consensus.GoodWithin(sessions), true, &st.estimate);
+    result.final_summary = solution.summary;
+    for (int s = 0; s < st.graph.num_sessions(); ++s) {
+      if (!sessions[s]) continue;
+      result.sessions.push_back(s);
+      for (int v : st.graph.session(s).vertices) st.estimate[v] = solution.estimate[v];
+    }
+  }
+  result.solves = consensus.solves;
+  ++consensus.step;
+  return result;
+}
+
+template <class Pose>
+const PoseGraph<Pose>& Irrr<Pose>::graph() const {
+  return state_->graph;
+}
+
+template <class Pose>
+const std::vector<Pose>& Irrr<Pose>::estimate() const {
+  return state_->estimate;
+}
+
+template <class Pose>
+const LoopDecision& Irrr<Pose>::decision(int edge) const {
+  return state_->decisions[edge];
+}
+
+template <class Pose>
+const LoopClusterer& Irrr<Pose>::clusters() const {
+  return state_->clusterer;
+}
+
+template <class Pose>
+int Irrr<Pose>::num_steps() const {
+  return state_->consensus.step;
+}
+
+template <class Pose>
+std::vector<int> Irrr<Pose>::Components() const {
+  const State& st = *state_;
+  std::vector<char> active(st.graph.num_edges(), 0);
+  for (int c = 0; c < static_cast<int>(st.consensus.in_good.size()); ++c) {
+    if (!st.consensus.in_good[c]) continue;
+    for (int e : st.consensus.links[c]) active[e] = 1;
+  }
+  return SessionComponents(st.graph, active);
+}
+
+template <class Pose>
+std::vector<LoopDecision> RunBatchRrr(const PoseGraph<Pose>& graph,
+                                      const IrrrOptions& options,
+                                      std::vector<Pose>* estimate) {
+  IRRR_CHECK(options.Validate().ok());
+  std::vector<LoopDecision> decisions(graph.num_edges());
+  Consensus<Pose> consensus;
+  consensus.graph = &graph;
+  consensus.options = &options;
+  consensus.decisions = &decisions;
+  const std::vector<Pose> dead_reckoning = graph.OdometryEstimate();
+  consensus.dead_reckoning = &dead_reckoning;
+  consensus.odometry_of_session.resize(graph.num_sessions());
+
+  // Cluster in arrival order: a loop arrives with the later of its two poses.
+  std::vector<int> loops;
+  for (int e = 0; e < graph.num_edges(); ++e) {
+    if (graph.edge(e).kind == EdgeKind::kOdometry) {
+      consensus.odometry_of_session[graph.vertex(graph.edge(e).to).session].push_back(e);
+    } else {
+      loops.push_back(e);
+    }
+  }
+  auto arrival = [&graph](int e) { return std::max(graph.edge(e).from, graph.edge(e).to); };
+  std::stable_sort(
+      loops.begin(), loops.end(), [&](int a, int b) { return arrival(a) < arrival(b); });
+  LoopClusterer clusterer(options.cluster_gap);
+  for (int e : loops) {
+    const Vertex& from = graph.vertex(graph.edge(e).from);
+    const Vertex& to = graph.vertex(graph.edge(e).to);
+    const int c = clusterer.AddLink(e, from.session, from.stamp, to.session, to.stamp);
+    if (c >= static_cast<int>(consensus.links.size())) {
+      consensus.AddCluster(clusterer.cluster(c).session_a, clusterer.cluster(c).session_b);
+    }
+    consensus.links[c].push_back(e);
+    decisions[e].cluster = c;
+  }
+  clusterer.CloseAll();
+
+  // Clusters split off by Algorithm 1 are appended and judged in the same pass.
+  for (int c = 0; c < clusterer.num_clusters(); ++c) consensus.IntraCluster(c, nullptr);
+  const std::vector<char> all_sessions(graph.num_sessions(), 1);
+  consensus.Algorithm3(all_sessions, /*incremental=*/false, nullptr);
+  const auto solution =
+      consensus.Solve(all_sessions, consensus.GoodWithin(all_sessions), false, &dead_reckoning);
+  if (estimate != nullptr) *estimate = solution.estimate;
+  return decisions;
+}
+
+template <class Pose>
+std::vector<ArrivalEvent> ArrivalOrder(const PoseGraph<Pose>& graph) {
+  std::vector<std::vector<int>> loops_at(graph.num_vertices());
+  for (int e = 0; e < graph.num_edges(); ++e) {
+    const Edge<Pose>& edge = graph.edge(e);
+    if (edge.kind == EdgeKind::kLoop) loops_at[std::max(edge.from, edge.to)].push_back(e);
+  }
+  std::vector<ArrivalEvent> events;
+  events.reserve(graph.num_vertices() + graph.num_edges() + graph.num_sessions());
+  for (int v = 0; v < graph.num_vertices(); ++v) {
+    events.push_back({ArrivalEvent::Kind::kPose, v});
+    for (int e : loops_at[v]) events.push_back({ArrivalEvent::Kind::kLoop, e});
+    const int session = graph.vertex(v).session;
+    if (graph.session(session).vertices.back() == v) {
+      events.push_back({ArrivalEvent::Kind::kEndSession, session});
+    }
+  }
+  return events;
+}
+
+template <class Pose>
+std::vector<LoopDecision> RunIncrementalIrrr(const PoseGraph<Pose>& graph,
+                                             const IrrrOptions& options,
+                                             std::vector<Pose>* estimate,
+                                             std::vector<StepResult>* steps) {
+  Irrr<Pose> irrr(options);
+  auto run_steps = [&]() {
+    while (irrr.HasPendingStep()) {
+      StepResult step = irrr.RunStep();
+      if (steps != nullptr) steps->push_back(std::move(step));
+    }
+  };
+  std::vector<int> odometry_into(graph.num_vertices(), -1);
+  for (int e = 0; e < graph.num_edges(); ++e) {
+    if (graph.edge(e).kind == EdgeKind::kOdometry) odometry_into[graph.edge(e).to] = e;
+  }
+  std::vector<int> session_of(graph.num_sessions(), -1);  // input session -> irrr session
+  std::vector<int> vertex_of(graph.num_vertices(), -1);
+  std::vector<int> edge_of(graph.num_edges(), -1);
+  for (const ArrivalEvent& event : ArrivalOrder(graph)) {
+    switch (event.kind) {
+      case ArrivalEvent::Kind::kPose: {
+        const int v = event.index;
+        const Vertex& vertex = graph.vertex(v);
+        int& session = session_of[vertex.session];
+        if (session < 0) {
+          IRRR_CHECK(irrr.AddSession(graph.session(vertex.session).id, &session).ok());
+        }
+        const int odometry = odometry_into[v];
+        const Edge<Pose>* edge = odometry >= 0 ? &graph.edge(odometry) : nullptr;
+        IRRR_CHECK(irrr.AddPose(session,
+                                vertex.id,
+                                vertex.stamp,
+                                edge ? &edge->measurement : nullptr,
+                                edge ? &edge->information : nullptr,
+                                &vertex_of[v])
+                       .ok());
+        if (odometry >= 0) edge_of[odometry] = irrr.graph().num_edges() - 1;
+        break;
+      }
+      case ArrivalEvent::Kind::kLoop: {
+        const Edge<Pose>& loop = graph.edge(event.index);
+        IRRR_CHECK(irrr.AddLoop(vertex_of[loop.from],
+                                vertex_of[loop.to],
+                                loop.measurement,
+                                loop.information,
+                                &edge_of[event.index])
+                       .ok());
+        break;
+      }
+      case ArrivalEvent::Kind::kEndSession:
+        IRRR_CHECK(irrr.EndSession(session_of[event.index]).ok());
+        break;
+    }
+    run_steps();
+  }
+  irrr.Flush();
+  run_steps();
+
+  std::vector<LoopDecision> decisions(graph.num_edges());
+  for (int e = 0; e < graph.num_edges(); ++e) decisions[e] = irrr.decision(edge_of[e]);
+  if (estimate != nullptr) {
+    estimate->resize(graph.num_vertices());
+    for (int v = 0; v < graph.num_vertices(); ++v) (*estimate)[v] = irrr.estimate()[vertex_of[v]];
+  }
+  return decisions;
+}
+
+template class Irrr<Pose2>;
+template class Irrr<Pose3>;
+template std::vector<LoopDecision> RunIncrementalIrrr<Pose2>(const PoseGraph<Pose2>&,
+                                                             const IrrrOptions&,
+                                                             std::vector<Pose2>*,
+                                                             std::vector<StepResult>*);
+template std::vector<LoopDecision> RunIncrementalIrrr<Pose3>(const PoseGraph<Pose3>&,
+                                                             const IrrrOptions&,
+                                                             std::vector<Pose3>*,
+                                                             std::vector<StepResult>*);
+template std::vector<ArrivalEvent> ArrivalOrder<Pose2>(const PoseGraph<Pose2>&);
+template std::vector<ArrivalEvent> ArrivalOrder<Pose3>(const PoseGraph<Pose3>&);
+template std::vector<LoopDecision> RunBatchRrr<Pose2>(const PoseGraph<Pose2>&,
+                                                      const IrrrOptions&,
+                                                      std::vector<Pose2>*);
+template std::vector<LoopDecision> RunBatchRrr<Pose3>(const PoseGraph<Pose3>&,
+                                                      const IrrrOptions&,
+                                                      std::vector<Pose3>*);
+
+}  // namespace irrr
