@@ -1,13 +1,21 @@
 // irrr-batch: decide about the loop closures of a pose-graph file and optimize it.
 //
-//   irrr-batch INPUT [--method none] [--output OUT.g2o] [--ground-truth GT]
+//   irrr-batch INPUT [--method none|rrr|irrr] [--config FILE] [--decisions OUT.csv]
+//              [--output OUT.g2o] [--ground-truth GT] [--alpha A] [--cluster-gap G]
+//              [--graph-dof residual_rows|exact] [--solver gn|lm] [--max-iterations N]
 //
-// Exit codes follow sysexits.h: 64 usage, 65 bad input data, 66 input missing, 73 output not
-// written, 70 optimizer failure.
+// Options come from the "irrr" object of the configuration file (if any), then from the command
+// line, which overrides it. Exit codes follow sysexits.h: 64 usage, 65 bad input data, 66 input
+// missing, 70 optimizer failure, 73 output not written, 78 bad configuration.
 
 #include <sysexits.h>
 
+#include <algorithm>
 #include <chrono>
+#include <cmath>
+#include <fstream>
+#include <functional>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -15,7 +23,10 @@
 #include <CLI/CLI.hpp>
 
 #include "clients/graph_files.h"
+#include "clients/irrr_config.h"
+#include "clients/loop_csv.h"
 #include "core/graph_io.h"
+#include "core/irrr.h"
 #include "core/optimizer.h"
 #include "core/trajectory_metrics.h"
 
@@ -25,10 +36,10 @@ namespace {
 struct BatchArguments {
   std::string input;
   std::string method = "none";
+  std::string config;
+  std::string decisions;
   std::string output;
   std::string ground_truth;
-  std::string solver = "gn";
-  int max_iterations = 100;
   bool skip_unknown_tags = false;
 };
 
@@ -36,8 +47,63 @@ double SecondsSince(std::chrono::steady_clock::time_point start) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 }
 
+int WriteOrFail(const std::string& path, const std::function<Status(std::ostream&)>& write) {
+  if (Status s = WriteFileAtomically(path, write); !s.ok()) {
+    fmt::print(stderr, "irrr-batch: {}\n", s.message());
+    return EX_CANTCREAT;
+  }
+  return EX_OK;
+}
+
+// ATE with each component aligned on its own; one line per component when there are several.
 template <class Pose>
-int Run(const BatchArguments& args, FileFormat format) {
+void PrintAccuracy(const PoseGraph<Pose>& graph,
+                   const std::vector<char>& active,
+                   const std::vector<Pose>& estimate,
+                   const std::vector<Pose>& ground_truth,
+                   const std::string& ground_truth_path) {
+  const std::vector<int> component = SessionComponents(graph, active);
+  std::vector<std::vector<int>> groups;
+  std::vector<std::vector<int>> sessions_of_group;
+  for (int s = 0; s < graph.num_sessions(); ++s) {
+    if (component[s] >= static_cast<int>(groups.size())) {
+      groups.resize(component[s] + 1);
+      sessions_of_group.resize(component[s] + 1);
+    }
+    for (int v : graph.session(s).vertices) groups[component[s]].push_back(v);
+    sessions_of_group[component[s]].push_back(s);
+  }
+  const TrajectoryError ate = AbsoluteTrajectoryError(estimate, ground_truth, groups);
+  fmt::print("accuracy  ATE against {}: rmse {:.4f} m, mean {:.4f} m, max {:.4f} m\n",
+             ground_truth_path,
+             ate.rmse_m,
+             ate.mean_m,
+             ate.max_m);
+  if (groups.size() < 2) return;
+  // errors_m follows the groups' order.
+  size_t next = 0;
+  for (size_t c = 0; c < groups.size(); ++c) {
+    double sum_squared = 0.0;
+    double max_m = 0.0;
+    for (size_t k = 0; k < groups[c].size(); ++k, ++next) {
+      sum_squared += ate.errors_m[next] * ate.errors_m[next];
+      max_m = std::max(max_m, ate.errors_m[next]);
+    }
+    std::string sessions;
+    for (int s : sessions_of_group[c]) {
+      sessions += (sessions.empty() ? "" : ",") + std::to_string(graph.session(s).id);
+    }
+    fmt::print("          component {} (session {}): {} poses, rmse {:.4f} m, max {:.4f} m\n",
+               c,
+               sessions,
+               groups[c].size(),
+               std::sqrt(sum_squared / std::max<size_t>(1, groups[c].size())),
+               max_m);
+  }
+}
+
+template <class Pose>
+int Run(const BatchArguments& args, const IrrrOptions& options, FileFormat format) {
   const auto load_start = std::chrono::steady_clock::now();
   GraphFile<Pose> file;
   PoseGraph<Pose> graph;
@@ -73,57 +139,117 @@ int Run(const BatchArguments& args, FileFormat format) {
       num_loops,
       load_s);
 
-  // --method none: every loop hypothesis is trusted.
-  const std::vector<char> active(graph.num_edges(), 1);
-  OptimizerOptions options;
-  options.algorithm = args.solver == "lm" ? OptimizerAlgorithm::kLevenbergMarquardt
-                                          : OptimizerAlgorithm::kGaussNewton;
-  options.max_iterations = args.max_iterations;
-  Optimizer<Pose> optimizer(options);
+  std::vector<LoopDecision> decisions(graph.num_edges());
   std::vector<Pose> estimate = graph.initial_estimate();
-  const auto solve_start = std::chrono::steady_clock::now();
-  const OptimizerSummary summary = optimizer.Solve(graph, active, &estimate);
-  const double solve_s = SecondsSince(solve_start);
-  fmt::print(
-      "optimize  {} ({}): {} iterations, chi2 {:.6g} -> {:.6g}, {} component(s), "
-      "{:.3f} s ({:.1f} ms per iteration)\n",
-      TerminationTypeName(summary.termination),
-      summary.message,
-      summary.iterations,
-      summary.initial_chi2,
-      summary.final_chi2,
-      summary.num_components,
-      solve_s,
-      1e3 * solve_s / std::max(1, summary.iterations));
+  std::vector<StepResult> steps;  // --method irrr
+  double decide_s = 0.0;
+  int exit_code = EX_OK;
+  if (args.method == "none") {
+    // Every loop hypothesis is trusted.
+    for (int e = 0; e < graph.num_edges(); ++e) {
+      if (graph.edge(e).kind == EdgeKind::kLoop) decisions[e].state = LoopState::kAccepted;
+    }
+    Optimizer<Pose> optimizer(options.optimizer);
+    const auto solve_start = std::chrono::steady_clock::now();
+    const OptimizerSummary summary =
+        optimizer.Solve(graph, std::vector<char>(graph.num_edges(), 1), &estimate);
+    const double solve_s = SecondsSince(solve_start);
+    fmt::print(
+        "optimize  {} ({}): {} iterations, chi2 {:.6g} -> {:.6g}, {} component(s), "
+        "{:.3f} s ({:.1f} ms per iteration)\n",
+        TerminationTypeName(summary.termination),
+        summary.message,
+        summary.iterations,
+        summary.initial_chi2,
+        summary.final_chi2,
+        summary.num_components,
+        solve_s,
+        1e3 * solve_s / std::max(1, summary.iterations));
+    if (!summary.IsSolutionUsable()) exit_code = EX_SOFTWARE;
+  } else {
+    const auto decide_start = std::chrono::steady_clock::now();
+    decisions = args.method == "rrr" ? RunBatchRrr(graph, options, &estimate)
+                                     : RunIncrementalIrrr(graph, options, &estimate, &steps);
+    decide_s = SecondsSince(decide_start);
+  }
+  // The result's edges: odometry and the accepted loops.
+  std::vector<char> active(graph.num_edges(), 0);
+  for (int e = 0; e < graph.num_edges(); ++e) {
+    active[e] =
+        graph.edge(e).kind == EdgeKind::kOdometry || decisions[e].state == LoopState::kAccepted;
+  }
+
+  if (args.method != "none") {
+    std::map<LoopState, int> count;
+    std::vector<int> clusters;
+    double chi2 = 0.0;
+    for (int e = 0; e < graph.num_edges(); ++e) {
+      if (active[e]) chi2 += EdgeChi2(graph.edge(e), estimate);
+      if (graph.edge(e).kind != EdgeKind::kLoop) continue;
+      ++count[decisions[e].state];
+      if (decisions[e].cluster >= 0) clusters.push_back(decisions[e].cluster);
+    }
+    std::sort(clusters.begin(), clusters.end());
+    const int num_clusters =
+        static_cast<int>(std::unique(clusters.begin(), clusters.end()) - clusters.begin());
+    const std::vector<int> component = SessionComponents(graph, active);
+    const int num_components =
+        component.empty() ? 0 : *std::max_element(component.begin(), component.end()) + 1;
+    const int link = count[LoopState::kRejectedLinkTest];
+    const int cluster = count[LoopState::kRejectedClusterTest];
+    const int joint = count[LoopState::kRejectedJointTest];
+    fmt::print(
+        "decide    {}: {} loops in, {} accepted, {} rejected ({} link test, {} cluster test, {} "
+        "joint test), {} reversed, {} pending, {} clusters, {}{} component(s), chi2 {:.6g}, "
+        "{:.3f} s\n",
+        args.method,
+        num_loops,
+        count[LoopState::kAccepted],
+        link + cluster + joint,
+        link,
+        cluster,
+        joint,
+        count[LoopState::kReversed],
+        count[LoopState::kPending],
+        num_clusters,
+        args.method == "irrr" ? fmt::format("{} steps, ", steps.size()) : std::string(),
+        num_components,
+        chi2,
+        decide_s);
+  }
 
   if (!ground_truth.empty()) {
-    const std::vector<int> component = SessionComponents(graph, active);
-    std::vector<std::vector<int>> groups;
-    for (int s = 0; s < graph.num_sessions(); ++s) {
-      if (component[s] >= static_cast<int>(groups.size())) groups.resize(component[s] + 1);
-      for (int v : graph.session(s).vertices) groups[component[s]].push_back(v);
+    PrintAccuracy(graph, active, estimate, ground_truth, args.ground_truth);
+  }
+
+  if (!args.decisions.empty()) {
+    const std::vector<DecisionRow> rows =
+        DecisionRowsInFileOrder(file, graph, graph_edge_of_file_edge, decisions);
+    if (int code = WriteOrFail(args.decisions,
+                               [&](std::ostream& out) { return WriteDecisionsCsv(out, rows); });
+        code != EX_OK) {
+      return code;
     }
-    const TrajectoryError ate = AbsoluteTrajectoryError(estimate, ground_truth, groups);
-    fmt::print("accuracy  ATE against {}: rmse {:.4f} m, mean {:.4f} m, max {:.4f} m\n",
-               args.ground_truth,
-               ate.rmse_m,
-               ate.mean_m,
-               ate.max_m);
+    fmt::print("decisions {}\n", args.decisions);
   }
 
   if (!args.output.empty()) {
-    const GraphFile<Pose> result = WithEstimate(file, graph, estimate);
+    // Vertices at the estimate; edges: odometry and the accepted loops, in file order.
+    GraphFile<Pose> result = WithEstimate(file, graph, estimate);
+    result.edges.clear();
+    for (size_t k = 0; k < file.edges.size(); ++k) {
+      if (active[graph_edge_of_file_edge[k]]) result.edges.push_back(file.edges[k]);
+    }
     const FileFormat output_format = FormatForPath(args.output);
-    if (Status s = WriteFileAtomically(
+    if (int code = WriteOrFail(
             args.output,
             [&](std::ostream& out) { return WriteGraphFile(out, output_format, result); });
-        !s.ok()) {
-      fmt::print(stderr, "irrr-batch: {}\n", s.message());
-      return EX_CANTCREAT;
+        code != EX_OK) {
+      return code;
     }
     fmt::print("output    {}\n", args.output);
   }
-  return summary.IsSolutionUsable() ? EX_OK : EX_SOFTWARE;
+  return exit_code;
 }
 
 }  // namespace
@@ -131,29 +257,66 @@ int Run(const BatchArguments& args, FileFormat format) {
 
 int main(int argc, char** argv) {
   irrr::BatchArguments args;
+  double alpha = 0.0;
+  double cluster_gap = 0.0;
+  std::string graph_dof;
+  std::string solver;
+  int max_iterations = 0;
+  // Help shows IrrrOptions' own defaults, under their configuration names.
+  const nlohmann::json defaults = irrr::IrrrOptionsToJson(irrr::IrrrOptions());
   CLI::App app{"irrr-batch: robust loop closing (iRRR) and optimization of a pose-graph file"};
-  app.add_option("input", args.input, "g2o (2D or 3D) or TORO 2D pose-graph file")
-      ->required()
-      ->check(CLI::ExistingFile);
+  app.add_option("input", args.input, "g2o (2D or 3D) or TORO 2D pose-graph file")->required();
   app.add_option("--method",
                  args.method,
-                 "loop-closure decision method: none (accept every loop hypothesis)")
-      ->check(CLI::IsMember({"none"}))
+                 "none (accept every loop hypothesis), rrr (batch RRR) or irrr (incremental "
+                 "iRRR, hypotheses replayed in arrival order)")
+      ->check(CLI::IsMember({"none", "rrr", "irrr"}))
       ->capture_default_str();
-  app.add_option(
-      "--output", args.output, "write the optimized graph here (TORO for *.graph, g2o otherwise)");
+  app.add_option("--config", args.config, "JSON configuration; only its \"irrr\" object is read");
+  app.add_option("--decisions",
+                 args.decisions,
+                 "write one CSV row per loop hypothesis, in input file order, here");
+  app.add_option("--output",
+                 args.output,
+                 "write the optimized graph (odometry and accepted loops) here (TORO for "
+                 "*.graph, g2o otherwise)");
   app.add_option("--ground-truth",
                  args.ground_truth,
                  "ground-truth poses (a graph file, or one 'x y yaw' line per vertex) for ATE");
-  app.add_option("--solver", args.solver, "gn (Gauss-Newton) or lm (Levenberg-Marquardt)")
-      ->check(CLI::IsMember({"gn", "lm"}))
-      ->capture_default_str();
-  app.add_option("--max-iterations", args.max_iterations, "optimizer iteration limit")
-      ->check(CLI::PositiveNumber)
-      ->capture_default_str();
+  app.add_option(
+      "--alpha",
+      alpha,
+      fmt::format("confidence of the chi-square tests, in (0, 1) [{}]", defaults["alpha"].dump()));
+  app.add_option("--cluster-gap",
+                 cluster_gap,
+                 fmt::format("cluster gap t_g of eq. (6), in poses for files [{}]",
+                             defaults["cluster_gap"].dump()));
+  app.add_option("--graph-dof",
+                 graph_dof,
+                 fmt::format("degrees of freedom of the graph test: residual_rows (reference) or "
+                             "exact [{}]",
+                             defaults["graph_dof"].get<std::string>()))
+      ->check(CLI::IsMember({"residual_rows", "exact"}));
+  app.add_option("--solver",
+                 solver,
+                 fmt::format("gn (Gauss-Newton) or lm (Levenberg-Marquardt) [{}]",
+                             irrr::IrrrOptions().optimizer.algorithm ==
+                                     irrr::OptimizerAlgorithm::kGaussNewton
+                                 ? "gn"
+                                 : "lm"))
+      ->check(CLI::IsMember({"gn", "lm"}));
+  app.add_option("--max-iterations",
+                 max_iterations,
+                 fmt::format("optimizer iteration limit [{}]",
+                             defaults["optimizer"]["max_iterations"].dump()))
+      ->check(CLI::PositiveNumber);
   app.add_flag("--skip-unknown-tags",
                args.skip_unknown_tags,
                "ignore lines with tags other than vertices and edges (e.g. EQUIV)");
+  app.footer(
+      "Defaults in brackets are IrrrOptions' own; a --config file replaces them and the options "
+      "above replace the file's.\n\nExit codes: 0 ok, 64 usage, 65 bad input data, 66 input "
+      "missing, 70 optimizer failure, 73 output not written, 78 bad configuration.");
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -161,12 +324,49 @@ int main(int argc, char** argv) {
     return code == 0 ? EX_OK : EX_USAGE;
   }
 
+  irrr::IrrrOptions options;
+  if (!args.config.empty()) {
+    if (!std::ifstream(args.config)) {
+      fmt::print(stderr, "irrr-batch: {}: cannot open\n", args.config);
+      return EX_NOINPUT;
+    }
+    nlohmann::json config;
+    if (irrr::Status s = irrr::LoadConfigFile(args.config, &config); !s.ok()) {
+      fmt::print(stderr, "irrr-batch: {}\n", s.message());
+      return EX_CONFIG;
+    }
+    if (irrr::Status s = irrr::ParseIrrrConfig(config, &options); !s.ok()) {
+      fmt::print(stderr, "irrr-batch: {}: {}\n", args.config, s.message());
+      return EX_CONFIG;
+    }
+  }
+  if (app.count("--alpha") > 0) options.alpha = alpha;
+  if (app.count("--cluster-gap") > 0) options.cluster_gap = cluster_gap;
+  if (app.count("--graph-dof") > 0) {
+    options.graph_dof = graph_dof == "exact" ? irrr::GraphDegreesOfFreedom::kExact
+                                             : irrr::GraphDegreesOfFreedom::kResidualRows;
+  }
+  if (app.count("--solver") > 0) {
+    options.optimizer.algorithm = solver == "lm" ? irrr::OptimizerAlgorithm::kLevenbergMarquardt
+                                                 : irrr::OptimizerAlgorithm::kGaussNewton;
+  }
+  if (app.count("--max-iterations") > 0) options.optimizer.max_iterations = max_iterations;
+  // The file's values were valid: what fails now came from the command line.
+  if (irrr::Status s = options.Validate(); !s.ok()) {
+    fmt::print(stderr, "irrr-batch: command line: {}\n", s.message());
+    return EX_USAGE;
+  }
+
+  if (!std::ifstream(args.input)) {
+    fmt::print(stderr, "irrr-batch: {}: cannot open\n", args.input);
+    return EX_NOINPUT;
+  }
   irrr::FileFormat format;
   int dimension = 0;
   if (irrr::Status s = irrr::InspectGraphFile(args.input, &format, &dimension); !s.ok()) {
     fmt::print(stderr, "irrr-batch: {}\n", s.message());
     return EX_DATAERR;
   }
-  return dimension == 2 ? irrr::Run<irrr::Pose2>(args, format)
-                        : irrr::Run<irrr::Pose3>(args, format);
+  return dimension == 2 ? irrr::Run<irrr::Pose2>(args, options, format)
+                        : irrr::Run<irrr::Pose3>(args, options, format);
 }
