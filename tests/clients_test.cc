@@ -14,6 +14,7 @@
 #include <string>
 #include <vector>
 
+#include <fmt/core.h>
 #include <catch2/catch.hpp>
 
 #include "clients/graph_files.h"
@@ -470,7 +471,8 @@ TEST_CASE("irrr-corrupt then irrr-batch --method irrr: no injected outlier is ac
   }
   const std::string batch = std::string(IRRR_BATCH) + " " + Quoted(corrupted) +
                             " --method irrr --config " + Quoted(config) + " --decisions " +
-                            Quoted(decisions) + " --output " + Quoted(output);
+                            Quoted(decisions) + " --output " + Quoted(output) + " --labels " +
+                            Quoted(labels);
   {
     const int code = RunTool(batch, log);
     INFO(batch << "\n" << ReadText(log));
@@ -528,6 +530,12 @@ TEST_CASE("irrr-corrupt then irrr-batch --method irrr: no injected outlier is ac
   // Intel prefix is consistent, and iRRR keeps (all of) its loops.
   constexpr double kMinRecall = 0.9;
   CHECK(true_accepted >= kMinRecall * true_loops);
+  // --labels prints the same counts.
+  CHECK_THAT(
+      ReadText(log),
+      Contains("recall " + fmt::format("{:.4f}", static_cast<double>(true_accepted) / true_loops) +
+               " (" + std::to_string(true_accepted) + " of " + std::to_string(true_loops) +
+               " true loops), 0 of 30 wrong loops accepted"));
 
   // The output holds the odometry and exactly the accepted loops.
   GraphFile<Pose2> optimized;
