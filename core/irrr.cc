@@ -4,6 +4,7 @@
 #include <cmath>
 #include <deque>
 #include <functional>
+#include <tuple>
 
 #include <boost/math/distributions/chi_squared.hpp>
 
@@ -578,16 +579,19 @@ struct Consensus {
       int worst = by_index.front().second;
       // Beyond the paper: a wrong cluster bends the joint optimum, and a true cluster next to it
       // can show the larger index. Each of the few largest is left out in turn. If leaving out
-      // some of them makes the rest pass Algorithm 2's tests, the one with the fewest links goes
-      // (the largest consistent set wins: a small wrong group accepted early must not outvote a
-      // large true cluster); otherwise the one whose absence leaves the rest most consistent
-      // (normalized D_C^2 of the rest).
+      // some of them makes the rest pass Algorithm 2's tests, the one to go is the one with the
+      // fewest links (the largest consistent set wins: a small wrong group accepted early must
+      // not outvote a large true cluster); on equal sizes a candidate goes before a member of
+      // the good set, then the one whose absence leaves the smallest D_G^2 (a wrong link that
+      // odometry can absorb still bends it). If none does, the one whose absence leaves the rest
+      // most consistent (normalized D_C^2 of the rest).
       const int lookahead =
           std::min<int>(options->elimination_lookahead, static_cast<int>(by_index.size()));
       if (lookahead > 1) {
-        double best_score = std::numeric_limits<double>::infinity();
-        bool best_passes = false;
-        size_t best_links = 0;
+        // Ordered: passes (true first), links left out, good member, score.
+        using Rank = std::tuple<bool, size_t, bool, double>;
+        Rank best;
+        bool have_best = false;
         for (int k = 0; k < lookahead; ++k) {
           const int left_out = by_index[k].second;
           std::vector<int> rest;
@@ -596,25 +600,26 @@ struct Consensus {
           }
           const Solution without = Solve(sessions, rest, false);
           if (!without.summary.IsSolutionUsable()) continue;
-          double rest_chi2 = 0.0;
-          double rest_links = 0.0;
-          for (int c : rest) {
-            for (int e : links[c]) rest_chi2 += without.summary.edge_chi2[e];
-            rest_links += static_cast<double>(links[c].size());
-          }
-          const double score =
-              rest.empty() ? 0.0
-                           : rest_chi2 / ChiSquareQuantile(options->alpha, Pose::kDim * rest_links);
           const bool passes = Judge(rest, without.summary, incremental).pass;
-          const size_t size = links[left_out].size();
-          const bool better =
-              passes != best_passes
-                  ? passes
-                  : (passes && size != best_links ? size < best_links : score < best_score);
-          if (k == 0 || better) {
-            best_score = score;
-            best_passes = passes;
-            best_links = size;
+          double score = 0.0;
+          if (passes) {
+            score = without.summary.final_chi2 / GraphThreshold(without.summary);
+          } else if (!rest.empty()) {
+            double rest_chi2 = 0.0;
+            double rest_links = 0.0;
+            for (int c : rest) {
+              for (int e : links[c]) rest_chi2 += without.summary.edge_chi2[e];
+              rest_links += static_cast<double>(links[c].size());
+            }
+            score = rest_chi2 / ChiSquareQuantile(options->alpha, Pose::kDim * rest_links);
+          }
+          const Rank rank{!passes,
+                          passes ? links[left_out].size() : 0,
+                          passes && in_good[left_out] != 0,
+                          score};
+          if (!have_best || rank < best) {
+            best = rank;
+            have_best = true;
             worst = left_out;
           }
         }
