@@ -409,59 +409,18 @@ RunResult RunIncrementalTimed(const std::string& label,
       }
     }
   };
-  std::vector<int> odometry_into(graph.num_vertices(), -1);
-  for (int e = 0; e < graph.num_edges(); ++e) {
-    if (graph.edge(e).kind == EdgeKind::kOdometry) odometry_into[graph.edge(e).to] = e;
-  }
-  std::vector<int> session_of(graph.num_sessions(), -1);
-  std::vector<int> vertex_of(graph.num_vertices(), -1);
-  std::vector<int> edge_of(graph.num_edges(), -1);
+  GraphReplay<Pose> replay(graph, &irrr);
   for (const ArrivalEvent& event : ArrivalOrder(graph)) {
-    switch (event.kind) {
-      case ArrivalEvent::Kind::kPose: {
-        const int v = event.index;
-        ++poses_in;
-        const Vertex& vertex = graph.vertex(v);
-        int& session = session_of[vertex.session];
-        if (session < 0) {
-          IRRR_CHECK(irrr.AddSession(graph.session(vertex.session).id, &session).ok());
-        }
-        const int odometry = odometry_into[v];
-        const Edge<Pose>* edge = odometry >= 0 ? &graph.edge(odometry) : nullptr;
-        IRRR_CHECK(irrr.AddPose(session,
-                                vertex.id,
-                                vertex.stamp,
-                                edge ? &edge->measurement : nullptr,
-                                edge ? &edge->information : nullptr,
-                                &vertex_of[v])
-                       .ok());
-        if (odometry >= 0) edge_of[odometry] = irrr.graph().num_edges() - 1;
-        break;
-      }
-      case ArrivalEvent::Kind::kLoop: {
-        const Edge<Pose>& loop = graph.edge(event.index);
-        IRRR_CHECK(irrr.AddLoop(vertex_of[loop.from],
-                                vertex_of[loop.to],
-                                loop.measurement,
-                                loop.information,
-                                &edge_of[event.index])
-                       .ok());
-        break;
-      }
-      case ArrivalEvent::Kind::kEndSession:
-        IRRR_CHECK(irrr.EndSession(session_of[event.index]).ok());
-        break;
-    }
+    poses_in += event.kind == ArrivalEvent::Kind::kPose ? 1 : 0;
+    replay.Apply(event);
     run_steps();
   }
   irrr.Flush();
   run_steps();
   result.seconds = SecondsSince(start);
   result.steps = irrr.num_steps();
-  result.decisions.resize(graph.num_edges());
-  for (int e = 0; e < graph.num_edges(); ++e) result.decisions[e] = irrr.decision(edge_of[e]);
-  estimate->resize(graph.num_vertices());
-  for (int v = 0; v < graph.num_vertices(); ++v) (*estimate)[v] = irrr.estimate()[vertex_of[v]];
+  result.decisions = replay.Decisions();
+  *estimate = replay.Estimate();
   return result;
 }
 

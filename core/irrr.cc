@@ -1026,75 +1026,99 @@ std::vector<ArrivalEvent> ArrivalOrder(const PoseGraph<Pose>& graph) {
 }
 
 template <class Pose>
+GraphReplay<Pose>::GraphReplay(const PoseGraph<Pose>& graph, Irrr<Pose>* irrr)
+    : graph_(graph),
+      irrr_(irrr),
+      odometry_into_(graph.num_vertices(), -1),
+      session_of_(graph.num_sessions(), -1),
+      vertex_of_(graph.num_vertices(), -1),
+      edge_of_(graph.num_edges(), -1) {
+  for (int e = 0; e < graph.num_edges(); ++e) {
+    if (graph.edge(e).kind == EdgeKind::kOdometry) odometry_into_[graph.edge(e).to] = e;
+  }
+}
+
+template <class Pose>
+void GraphReplay<Pose>::Apply(const ArrivalEvent& event) {
+  switch (event.kind) {
+    case ArrivalEvent::Kind::kPose: {
+      const int v = event.index;
+      const Vertex& vertex = graph_.vertex(v);
+      int& session = session_of_[vertex.session];
+      if (session < 0) {
+        IRRR_CHECK(irrr_->AddSession(graph_.session(vertex.session).id, &session).ok());
+      }
+      const int odometry = odometry_into_[v];
+      const Edge<Pose>* edge = odometry >= 0 ? &graph_.edge(odometry) : nullptr;
+      IRRR_CHECK(irrr_
+                     ->AddPose(session,
+                               vertex.id,
+                               vertex.stamp,
+                               edge ? &edge->measurement : nullptr,
+                               edge ? &edge->information : nullptr,
+                               &vertex_of_[v])
+                     .ok());
+      if (odometry >= 0) edge_of_[odometry] = irrr_->graph().num_edges() - 1;
+      break;
+    }
+    case ArrivalEvent::Kind::kLoop: {
+      const Edge<Pose>& loop = graph_.edge(event.index);
+      IRRR_CHECK(irrr_
+                     ->AddLoop(vertex_of_[loop.from],
+                               vertex_of_[loop.to],
+                               loop.measurement,
+                               loop.information,
+                               &edge_of_[event.index])
+                     .ok());
+      break;
+    }
+    case ArrivalEvent::Kind::kEndSession:
+      IRRR_CHECK(irrr_->EndSession(session_of_[event.index]).ok());
+      break;
+  }
+}
+
+template <class Pose>
+std::vector<LoopDecision> GraphReplay<Pose>::Decisions() const {
+  std::vector<LoopDecision> decisions(graph_.num_edges());
+  for (int e = 0; e < graph_.num_edges(); ++e) decisions[e] = irrr_->decision(edge_of_[e]);
+  return decisions;
+}
+
+template <class Pose>
+std::vector<Pose> GraphReplay<Pose>::Estimate() const {
+  std::vector<Pose> estimate(graph_.num_vertices());
+  for (int v = 0; v < graph_.num_vertices(); ++v) estimate[v] = irrr_->estimate()[vertex_of_[v]];
+  return estimate;
+}
+
+template <class Pose>
 std::vector<LoopDecision> RunIncrementalIrrr(const PoseGraph<Pose>& graph,
                                              const IrrrOptions& options,
                                              std::vector<Pose>* estimate,
                                              std::vector<StepResult>* steps) {
   Irrr<Pose> irrr(options);
+  GraphReplay<Pose> replay(graph, &irrr);
   auto run_steps = [&]() {
     while (irrr.HasPendingStep()) {
       StepResult step = irrr.RunStep();
       if (steps != nullptr) steps->push_back(std::move(step));
     }
   };
-  std::vector<int> odometry_into(graph.num_vertices(), -1);
-  for (int e = 0; e < graph.num_edges(); ++e) {
-    if (graph.edge(e).kind == EdgeKind::kOdometry) odometry_into[graph.edge(e).to] = e;
-  }
-  std::vector<int> session_of(graph.num_sessions(), -1);  // input session -> irrr session
-  std::vector<int> vertex_of(graph.num_vertices(), -1);
-  std::vector<int> edge_of(graph.num_edges(), -1);
   for (const ArrivalEvent& event : ArrivalOrder(graph)) {
-    switch (event.kind) {
-      case ArrivalEvent::Kind::kPose: {
-        const int v = event.index;
-        const Vertex& vertex = graph.vertex(v);
-        int& session = session_of[vertex.session];
-        if (session < 0) {
-          IRRR_CHECK(irrr.AddSession(graph.session(vertex.session).id, &session).ok());
-        }
-        const int odometry = odometry_into[v];
-        const Edge<Pose>* edge = odometry >= 0 ? &graph.edge(odometry) : nullptr;
-        IRRR_CHECK(irrr.AddPose(session,
-                                vertex.id,
-                                vertex.stamp,
-                                edge ? &edge->measurement : nullptr,
-                                edge ? &edge->information : nullptr,
-                                &vertex_of[v])
-                       .ok());
-        if (odometry >= 0) edge_of[odometry] = irrr.graph().num_edges() - 1;
-        break;
-      }
-      case ArrivalEvent::Kind::kLoop: {
-        const Edge<Pose>& loop = graph.edge(event.index);
-        IRRR_CHECK(irrr.AddLoop(vertex_of[loop.from],
-                                vertex_of[loop.to],
-                                loop.measurement,
-                                loop.information,
-                                &edge_of[event.index])
-                       .ok());
-        break;
-      }
-      case ArrivalEvent::Kind::kEndSession:
-        IRRR_CHECK(irrr.EndSession(session_of[event.index]).ok());
-        break;
-    }
+    replay.Apply(event);
     run_steps();
   }
   irrr.Flush();
   run_steps();
-
-  std::vector<LoopDecision> decisions(graph.num_edges());
-  for (int e = 0; e < graph.num_edges(); ++e) decisions[e] = irrr.decision(edge_of[e]);
-  if (estimate != nullptr) {
-    estimate->resize(graph.num_vertices());
-    for (int v = 0; v < graph.num_vertices(); ++v) (*estimate)[v] = irrr.estimate()[vertex_of[v]];
-  }
-  return decisions;
+  if (estimate != nullptr) *estimate = replay.Estimate();
+  return replay.Decisions();
 }
 
 template class Irrr<Pose2>;
 template class Irrr<Pose3>;
+template class GraphReplay<Pose2>;
+template class GraphReplay<Pose3>;
 template std::vector<LoopDecision> RunIncrementalIrrr<Pose2>(const PoseGraph<Pose2>&,
                                                              const IrrrOptions&,
                                                              std::vector<Pose2>*,

@@ -188,6 +188,29 @@ struct ArrivalEvent {
 template <class Pose>
 std::vector<ArrivalEvent> ArrivalOrder(const PoseGraph<Pose>& graph);
 
+// Replays a whole graph into an Irrr, one arrival event at a time, and maps the Irrr's vertex and
+// edge indices back to the graph's. The graph must be valid (it was built through PoseGraph), so
+// a rejected input is a broken invariant (aborts).
+template <class Pose>
+class GraphReplay {
+ public:
+  GraphReplay(const PoseGraph<Pose>& graph, Irrr<Pose>* irrr);
+
+  // Feeds one event of ArrivalOrder(graph) (in that order).
+  void Apply(const ArrivalEvent& event);
+  // Decisions indexed like the graph's edges, estimate like its vertices (after the replay).
+  std::vector<LoopDecision> Decisions() const;
+  std::vector<Pose> Estimate() const;
+
+ private:
+  const PoseGraph<Pose>& graph_;
+  Irrr<Pose>* irrr_;
+  std::vector<int> odometry_into_;  // per graph vertex: its odometry edge, or -1
+  std::vector<int> session_of_;     // graph session -> irrr session
+  std::vector<int> vertex_of_;      // graph vertex -> irrr vertex
+  std::vector<int> edge_of_;        // graph edge -> irrr edge
+};
+
 // Feeds a whole graph to an Irrr in arrival order (algorithm-notes, "Files as input"): vertices in
 // index order, each with its odometry; a loop right after the later of its two poses (edge order
 // among loops of one pose); a session ends with its last pose; every open cluster is flushed at the
