@@ -70,27 +70,6 @@ struct Case {
   int outliers = 0;
 };
 
-const char* ModeName(OutlierMode mode) {
-  switch (mode) {
-    case OutlierMode::kRandom:
-      return "random";
-    case OutlierMode::kLocal:
-      return "local";
-    case OutlierMode::kRandomGrouped:
-      return "random-grouped";
-    case OutlierMode::kLocalGrouped:
-      return "local-grouped";
-    case OutlierMode::kInterSession:
-      return "inter-session";
-  }
-  return "?";
-}
-
-bool IsGrouped(OutlierMode mode) {
-  return mode == OutlierMode::kRandomGrouped || mode == OutlierMode::kLocalGrouped ||
-         mode == OutlierMode::kInterSession;
-}
-
 std::vector<Case> AllCases() {
   struct Clean {
     std::string name;
@@ -122,7 +101,7 @@ std::vector<Case> AllCases() {
     for (int count : {100, 1000}) {
       for (OutlierMode mode : modes) {
         Case k;
-        k.name = fmt::format("{}-{}-{}", c.name, ModeName(mode), count);
+        k.name = fmt::format("{}-{}-{}", c.name, OutlierModeName(mode), count);
         k.kind = CaseKind::kSynthetic;
         k.graph = c.graph;
         k.reference = c.reference;
@@ -498,9 +477,9 @@ Status RunCase(const Case& c,
     }
     outlier_note = IsGrouped(c.mode) ? fmt::format("{} {}, groups of {}",
                                                    links.size(),
-                                                   ModeName(c.mode),
+                                                   OutlierModeName(c.mode),
                                                    std::max(1, options.group_size))
-                                     : fmt::format("{} {}", links.size(), ModeName(c.mode));
+                                     : fmt::format("{} {}", links.size(), OutlierModeName(c.mode));
   } else if (c.kind == CaseKind::kLabelled) {
     if constexpr (Pose::kDim == 3) {
       int unmatched = 0;

@@ -42,19 +42,18 @@ struct CorruptArguments {
 };
 
 const std::map<std::string, OutlierMode>& ModeNames() {
-  static const std::map<std::string, OutlierMode> names = {
-      {"random", OutlierMode::kRandom},
-      {"local", OutlierMode::kLocal},
-      {"random-grouped", OutlierMode::kRandomGrouped},
-      {"local-grouped", OutlierMode::kLocalGrouped},
-      {"inter-session", OutlierMode::kInterSession},
-  };
+  static const std::map<std::string, OutlierMode> names = [] {
+    std::map<std::string, OutlierMode> by_name;
+    for (OutlierMode mode : {OutlierMode::kRandom,
+                             OutlierMode::kLocal,
+                             OutlierMode::kRandomGrouped,
+                             OutlierMode::kLocalGrouped,
+                             OutlierMode::kInterSession}) {
+      by_name[OutlierModeName(mode)] = mode;
+    }
+    return by_name;
+  }();
   return names;
-}
-
-bool IsGrouped(OutlierMode mode) {
-  return mode == OutlierMode::kRandomGrouped || mode == OutlierMode::kLocalGrouped ||
-         mode == OutlierMode::kInterSession;
 }
 
 // The same constraint as `edge` written from its `to` pose: measurement inverted, information

@@ -31,13 +31,32 @@ struct Place {
 
 }  // namespace
 
+const char* OutlierModeName(OutlierMode mode) {
+  switch (mode) {
+    case OutlierMode::kRandom:
+      return "random";
+    case OutlierMode::kLocal:
+      return "local";
+    case OutlierMode::kRandomGrouped:
+      return "random-grouped";
+    case OutlierMode::kLocalGrouped:
+      return "local-grouped";
+    case OutlierMode::kInterSession:
+      return "inter-session";
+  }
+  return "unknown";
+}
+
+bool IsGrouped(OutlierMode mode) {
+  return mode == OutlierMode::kRandomGrouped || mode == OutlierMode::kLocalGrouped ||
+         mode == OutlierMode::kInterSession;
+}
+
 template <class Pose>
 Status MakeOutliers(const PoseGraph<Pose>& graph,
                     const OutlierOptions& options,
                     std::vector<OutlierLink<Pose>>* outliers) {
-  const bool grouped = options.mode == OutlierMode::kRandomGrouped ||
-                       options.mode == OutlierMode::kLocalGrouped ||
-                       options.mode == OutlierMode::kInterSession;
+  const bool grouped = IsGrouped(options.mode);
   const bool local =
       options.mode == OutlierMode::kLocal || options.mode == OutlierMode::kLocalGrouped;
   const int group = grouped ? std::max(1, options.group_size) : 1;

@@ -21,6 +21,12 @@ enum class OutlierMode {
   kInterSession,   // groups as above between two different sessions
 };
 
+// The mode's name as the tools spell it: random, local, random-grouped, local-grouped,
+// inter-session.
+const char* OutlierModeName(OutlierMode mode);
+// Whether the mode writes groups of links that agree with each other.
+bool IsGrouped(OutlierMode mode);
+
 struct OutlierOptions {
   OutlierMode mode = OutlierMode::kRandom;
   int count = 100;  // links in all (groups: a multiple of group_size is used, rounded up)
