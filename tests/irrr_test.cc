@@ -60,9 +60,11 @@ Corrupted<Pose> MakeCorrupted(const SyntheticOptions& synthetic, const OutlierOp
 constexpr double kTargetRecall = 0.99;
 
 // Checks that no injected outlier is accepted; reports the recall when below the target.
+// `what` names the case in the report.
 template <class Pose>
 void CheckNoOutlierAccepted(const Corrupted<Pose>& corrupted,
-                            const std::vector<LoopDecision>& decisions) {
+                            const std::vector<LoopDecision>& decisions,
+                            const std::string& what) {
   int accepted_outliers = 0;
   int accepted_inliers = 0;
   int inliers = 0;
@@ -80,7 +82,7 @@ void CheckNoOutlierAccepted(const Corrupted<Pose>& corrupted,
   CHECK(accepted_outliers == 0);
   REQUIRE(inliers > 0);
   if (static_cast<double>(accepted_inliers) / inliers < kTargetRecall) {
-    WARN("recall below the target: " << accepted_inliers << " of " << inliers);
+    WARN(what << ": recall below the target: " << accepted_inliers << " of " << inliers);
   }
 }
 
@@ -143,7 +145,8 @@ TEMPLATE_TEST_CASE(
                                     OutlierMode::kRandomGrouped,
                                     OutlierMode::kLocalGrouped);
   const uint32_t seed = GENERATE(1u, 2u);
-  INFO("mode " << static_cast<int>(mode) << " seed " << seed);
+  const std::string what = std::string(OutlierModeName(mode)) + " seed " + std::to_string(seed);
+  INFO(what);
   OutlierOptions outliers;
   outliers.mode = mode;
   outliers.count = 30;
@@ -155,13 +158,13 @@ TEMPLATE_TEST_CASE(
   SECTION("incremental iRRR") {
     std::vector<TestType> estimate;
     const auto decisions = RunIncrementalIrrr(corrupted.graph, options, &estimate, nullptr);
-    CheckNoOutlierAccepted(corrupted, decisions);
+    CheckNoOutlierAccepted(corrupted, decisions, "incremental, " + what);
     CheckEstimateIsOptimumOfAccepted(corrupted, decisions, estimate);
   }
   SECTION("batch RRR") {
     std::vector<TestType> estimate;
     const auto decisions = RunBatchRrr(corrupted.graph, options, &estimate);
-    CheckNoOutlierAccepted(corrupted, decisions);
+    CheckNoOutlierAccepted(corrupted, decisions, "batch, " + what);
     CheckEstimateIsOptimumOfAccepted(corrupted, decisions, estimate);
   }
 }
@@ -201,7 +204,7 @@ TEMPLATE_TEST_CASE(
   std::vector<StepResult> steps;
   const auto decisions =
       RunIncrementalIrrr(corrupted.graph, SyntheticIrrrOptions(), &estimate, &steps);
-  CheckNoOutlierAccepted(corrupted, decisions);
+  CheckNoOutlierAccepted(corrupted, decisions, "inter-session groups");
   CHECK(!steps.empty());
   // Sessions are joined exactly by the accepted loops (none of them wrong, checked above); the
   // issue's target is one map, reported when not reached.
