@@ -153,13 +153,8 @@ std::string DofName(GraphDegreesOfFreedom dof) {
 std::string VariantName(const Method& m) { return m.paper_faithful ? "paper" : "default"; }
 
 IrrrOptions OptionsFor(const Method& m) {
-  IrrrOptions options;
+  IrrrOptions options = m.paper_faithful ? IrrrOptions::PaperFaithful() : IrrrOptions();
   options.graph_dof = m.dof;
-  if (m.paper_faithful) {
-    options.require_each_cluster_consistent = false;
-    options.prune_failing_clusters = false;
-    options.elimination_lookahead = 1;
-  }
   return options;
 }
 

@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <deque>
 #include <functional>
 #include <tuple>
 
@@ -82,13 +81,6 @@ struct Consensus {
                             vertices.begin());
   }
 
-  // d^2 of a loop edge if its endpoints were at `from` and `to`.
-  static double LinkChi2(const Edge<Pose>& edge, const Pose& from, const Pose& to) {
-    const typename Pose::Tangent r =
-        RelativePoseResidual<Pose>(edge.measurement, from, to, nullptr, nullptr);
-    return r.dot(edge.information * r);
-  }
-
   // Brings the frame groups that `loop_edges` join into one frame (the group of the earliest
   // session), group by group in increasing group order. A group is placed through the link, among
   // those joining it to the groups already placed, that the others agree with best: the one whose
@@ -148,7 +140,7 @@ struct Consensus {
             const bool to_moves = group_of(edge.to) == next;
             const Pose from = to_moves ? (*x)[edge.from] : frame_T_next[j] * (*x)[edge.from];
             const Pose to = to_moves ? frame_T_next[j] * (*x)[edge.to] : (*x)[edge.to];
-            cost += std::min(LinkChi2(edge, from, to), cap);
+            cost += std::min(EdgeChi2(edge, from, to), cap);
           }
           if (cost < best_cost) {
             best_cost = cost;
@@ -505,6 +497,7 @@ struct Consensus {
 
   struct JointTest {
     bool pass = false;
+    double joint_index = 0.0;  // D_C^2 / chi2(alpha, d_C) over all tested clusters
     std::vector<std::pair<double, int>> by_index;  // (consistency index, cluster) of eligibles
   };
 
@@ -529,6 +522,7 @@ struct Consensus {
       if (incremental || !in_good[c]) test.by_index.push_back({index, c});
     }
     const double cluster_threshold = ChiSquareQuantile(options->alpha, Pose::kDim * num_links);
+    test.joint_index = tested.empty() ? 0.0 : cluster_chi2 / cluster_threshold;
     test.pass = summary.IsSolutionUsable() && cluster_chi2 < cluster_threshold &&
                 summary.final_chi2 < GraphThreshold(summary) &&
                 (!options->require_each_cluster_consistent || each_consistent);
@@ -546,10 +540,7 @@ struct Consensus {
                     std::vector<int>* changed) {
     std::vector<char> revived(links.size(), 0);
     while (!candidate.empty()) {
-      std::vector<int> good;
-      for (int c = 0; c < static_cast<int>(in_good.size()); ++c) {
-        if (in_good[c] && Within(sessions, c)) good.push_back(c);
-      }
+      const std::vector<int> good = GoodWithin(sessions);
       std::vector<int> tested = good;
       tested.insert(tested.end(), candidate.begin(), candidate.end());
       // Joint tests start warm (the previous step's estimate); a failure is confirmed from dead
@@ -600,19 +591,10 @@ struct Consensus {
           }
           const Solution without = Solve(sessions, rest, false);
           if (!without.summary.IsSolutionUsable()) continue;
-          const bool passes = Judge(rest, without.summary, incremental).pass;
-          double score = 0.0;
-          if (passes) {
-            score = without.summary.final_chi2 / GraphThreshold(without.summary);
-          } else if (!rest.empty()) {
-            double rest_chi2 = 0.0;
-            double rest_links = 0.0;
-            for (int c : rest) {
-              for (int e : links[c]) rest_chi2 += without.summary.edge_chi2[e];
-              rest_links += static_cast<double>(links[c].size());
-            }
-            score = rest_chi2 / ChiSquareQuantile(options->alpha, Pose::kDim * rest_links);
-          }
+          const JointTest rest_test = Judge(rest, without.summary, incremental);
+          const bool passes = rest_test.pass;
+          const double score = passes ? without.summary.final_chi2 / GraphThreshold(without.summary)
+                                      : rest_test.joint_index;
           const Rank rank{!passes,
                           passes ? links[left_out].size() : 0,
                           passes && in_good[left_out] != 0,
@@ -730,6 +712,18 @@ struct Consensus {
 
 double ChiSquareQuantile(double alpha, double dof) {
   return boost::math::quantile(boost::math::chi_squared(dof), alpha);
+}
+
+IrrrOptions IrrrOptions::PaperFaithful() {
+  IrrrOptions options;
+  options.require_each_cluster_consistent = false;
+  options.prune_failing_clusters = false;
+  options.elimination_lookahead = 1;
+  options.split_failing_links = false;
+  options.settle_undecided = false;
+  options.revive_opponents = false;
+  options.retry_within_step = false;
+  return options;
 }
 
 Status IrrrOptions::Validate() const {

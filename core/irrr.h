@@ -77,6 +77,9 @@ struct IrrrOptions {
   bool warm_start = false;
   OptimizerOptions optimizer;
 
+  // The paper's tests as written: every "beyond the paper" rule above switched off.
+  static IrrrOptions PaperFaithful();
+
   Status Validate() const;
 };
 

@@ -40,10 +40,15 @@ const char* TerminationTypeName(TerminationType type) {
 }
 
 template <class Pose>
-double EdgeChi2(const Edge<Pose>& edge, const std::vector<Pose>& estimate) {
-  const typename Pose::Tangent r = RelativePoseResidual<Pose>(
-      edge.measurement, estimate[edge.from], estimate[edge.to], nullptr, nullptr);
+double EdgeChi2(const Edge<Pose>& edge, const Pose& from, const Pose& to) {
+  const typename Pose::Tangent r =
+      RelativePoseResidual<Pose>(edge.measurement, from, to, nullptr, nullptr);
   return r.dot(edge.information * r);
+}
+
+template <class Pose>
+double EdgeChi2(const Edge<Pose>& edge, const std::vector<Pose>& estimate) {
+  return EdgeChi2(edge, estimate[edge.from], estimate[edge.to]);
 }
 
 template <class Pose>
@@ -396,6 +401,8 @@ OptimizerSummary Optimizer<Pose>::Solve(const PoseGraph<Pose>& graph,
 
 template double EdgeChi2<Pose2>(const Edge<Pose2>&, const std::vector<Pose2>&);
 template double EdgeChi2<Pose3>(const Edge<Pose3>&, const std::vector<Pose3>&);
+template double EdgeChi2<Pose2>(const Edge<Pose2>&, const Pose2&, const Pose2&);
+template double EdgeChi2<Pose3>(const Edge<Pose3>&, const Pose3&, const Pose3&);
 template std::vector<int> SessionComponents<Pose2>(const PoseGraph<Pose2>&,
                                                    const std::vector<char>&);
 template std::vector<int> SessionComponents<Pose3>(const PoseGraph<Pose3>&,

@@ -111,6 +111,9 @@ class Optimizer {
 // d^2 = r' Omega r of one edge at `estimate` (paper eq. 2).
 template <class Pose>
 double EdgeChi2(const Edge<Pose>& edge, const std::vector<Pose>& estimate);
+// The same with the edge's endpoints at `from` and `to`.
+template <class Pose>
+double EdgeChi2(const Edge<Pose>& edge, const Pose& from, const Pose& to);
 
 // The connected component of every session for an active set: active edges between two sessions
 // join them (a session with no active edge is a component of its own). Components are numbered 0,
