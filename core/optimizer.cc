@@ -329,7 +329,7 @@ OptimizerSummary Optimizer<Pose>::Solve(const PoseGraph<Pose>& graph,
         break;
       }
       apply_step(step);
-      const double step_size = step.lpNorm<Eigen::Infinity>();
+      double step_size = step.lpNorm<Eigen::Infinity>();
       double new_chi2;
       bool accept = true;
       if (levenberg_marquardt) {
@@ -347,9 +347,29 @@ OptimizerSummary Optimizer<Pose>::Solve(const PoseGraph<Pose>& graph,
           damping_growth *= 2.0;
         }
       } else {
-        // Gauss-Newton takes every step: linearizing at the candidate now serves the next
-        // iteration and gives its chi2.
+        // Gauss-Newton: linearizing at the candidate serves the next iteration and gives its
+        // chi2. A step that raises chi2 (far from the optimum, or with inconsistent loops, full
+        // steps can diverge) is halved until chi2 falls; if none of kMaxBacktracks halvings does,
+        // the estimate is as good as this direction gets.
         new_chi2 = Linearize(graph, active, fixed, candidate, &gradient);
+        if (!(new_chi2 <= chi2)) {
+          constexpr int kMaxBacktracks = 8;
+          double scale = 1.0;
+          bool decreased = false;
+          for (int k = 0; k < kMaxBacktracks && !decreased; ++k) {
+            scale *= 0.5;
+            apply_step(scale * step);
+            new_chi2 = chi2_at(candidate);
+            decreased = new_chi2 <= chi2;
+          }
+          if (!decreased) {
+            summary.termination = TerminationType::kConvergence;
+            summary.message = "no decrease along the Gauss-Newton step";
+            break;
+          }
+          step_size *= scale;
+          new_chi2 = Linearize(graph, active, fixed, candidate, &gradient);
+        }
       }
       if (!std::isfinite(new_chi2)) {
         summary.termination = TerminationType::kFailure;

@@ -4,6 +4,7 @@
 // Sparse nonlinear least squares over a pose graph (paper eq. 3): minimise
 //   D^2(x) = sum over the active edges (odometry and loops) of r_ij(x)' Omega_ij r_ij(x)
 // by Gauss-Newton or Levenberg-Marquardt on the normal equations, solved with CHOLMOD.
+// Gauss-Newton halves a step that would raise D^2, so neither method ever makes it worse.
 //
 // iRRR solves one graph again and again with different subsets of loop edges, so the subset is
 // an argument of Solve, and an Optimizer keeps its symbolic analysis between calls: a solve whose

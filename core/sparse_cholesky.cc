@@ -22,7 +22,12 @@ struct SparseCholesky::Impl {
     common.nmethods = 1;
     common.method[0].ordering = CHOLMOD_AMD;
     common.postorder = 1;
-    common.supernodal = CHOLMOD_SUPERNODAL;
+    // Simplicial or supernodal by CHOLMOD's own flop count: pose graphs of a few thousand 2D
+    // poses factorize twice as fast simplicially, while 3D and larger ones gain from supernodes
+    // (irrr-bench-optimizer). final_ll makes the simplicial factor LL' as well, so that an
+    // indefinite matrix is reported as such (an LDL' factor would accept it).
+    common.supernodal = CHOLMOD_AUTO;
+    common.final_ll = 1;
   }
 
   ~Impl() {

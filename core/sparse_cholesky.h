@@ -2,8 +2,9 @@
 #define IRRR_CORE_SPARSE_CHOLESKY_H_
 
 // Sparse Cholesky factorization of a symmetric positive-definite matrix with CHOLMOD
-// (supernodal, AMD fill-reducing ordering). CHOLMOD stays behind a pImpl: cholmod.h is included by
-// sparse_cholesky.cc only, and CHOLMOD's own printing is silenced.
+// (simplicial or supernodal as CHOLMOD judges best, AMD fill-reducing ordering). CHOLMOD stays
+// behind a pImpl: cholmod.h is included by sparse_cholesky.cc only, and CHOLMOD's own printing is
+// silenced.
 //
 // The pattern (upper triangle, compressed columns) is set once; the symbolic analysis is done on
 // the first factorization after SetPattern and reused by every later one, so a caller that solves
