@@ -497,7 +497,6 @@ struct Consensus {
 
   struct JointTest {
     bool pass = false;
-    double joint_index = 0.0;  // D_C^2 / chi2(alpha, d_C) over all tested clusters
     std::vector<std::pair<double, int>> by_index;  // (consistency index, cluster) of eligibles
   };
 
@@ -522,7 +521,6 @@ struct Consensus {
       if (incremental || !in_good[c]) test.by_index.push_back({index, c});
     }
     const double cluster_threshold = ChiSquareQuantile(options->alpha, Pose::kDim * num_links);
-    test.joint_index = tested.empty() ? 0.0 : cluster_chi2 / cluster_threshold;
     test.pass = summary.IsSolutionUsable() && cluster_chi2 < cluster_threshold &&
                 summary.final_chi2 < GraphThreshold(summary) &&
                 (!options->require_each_cluster_consistent || each_consistent);
@@ -574,13 +572,14 @@ struct Consensus {
       // fewest links (the largest consistent set wins: a small wrong group accepted early must
       // not outvote a large true cluster); on equal sizes a candidate goes before a member of
       // the good set, then the one whose absence leaves the smallest D_G^2 (a wrong link that
-      // odometry can absorb still bends it). If none does, the one whose absence leaves the rest
-      // most consistent (normalized D_C^2 of the rest).
+      // odometry can absorb still bends it). If none does, the paper's choice stands (the
+      // largest index): ranking failing rests by how close they come let two wrong single links,
+      // each absorbed by odometry, outvote a true cluster of 89 (3D helix, local outliers).
       const int lookahead =
           std::min<int>(options->elimination_lookahead, static_cast<int>(by_index.size()));
       if (lookahead > 1) {
-        // Ordered: passes (true first), links left out, good member, score.
-        using Rank = std::tuple<bool, size_t, bool, double>;
+        // Ordered: links left out, good member, score (only leave-one-outs that pass).
+        using Rank = std::tuple<size_t, bool, double>;
         Rank best;
         bool have_best = false;
         for (int k = 0; k < lookahead; ++k) {
@@ -591,14 +590,10 @@ struct Consensus {
           }
           const Solution without = Solve(sessions, rest, false);
           if (!without.summary.IsSolutionUsable()) continue;
-          const JointTest rest_test = Judge(rest, without.summary, incremental);
-          const bool passes = rest_test.pass;
-          const double score = passes ? without.summary.final_chi2 / GraphThreshold(without.summary)
-                                      : rest_test.joint_index;
-          const Rank rank{!passes,
-                          passes ? links[left_out].size() : 0,
-                          passes && in_good[left_out] != 0,
-                          score};
+          if (!Judge(rest, without.summary, incremental).pass) continue;
+          const Rank rank{links[left_out].size(),
+                          in_good[left_out] != 0,
+                          without.summary.final_chi2 / GraphThreshold(without.summary)};
           if (!have_best || rank < best) {
             best = rank;
             have_best = true;
