@@ -51,8 +51,9 @@ struct IrrrOptions {
   // graph test rejects the whole cluster; failing links leave it in one go).
   bool prune_failing_clusters = true;
   // Beyond the paper: when Algorithm 2's joint test fails, the clusters with the largest
-  // consistency indices (up to this many) are each left out in turn and the one whose absence
-  // leaves the rest most consistent is eliminated. 1: the paper's rule (largest index).
+  // consistency indices (up to this many) are each left out in turn; if leaving out some of them
+  // makes the rest pass, the smallest of those goes, else the paper's choice (largest index).
+  // 1: the paper's rule.
   int elimination_lookahead = 3;
   // Beyond the paper: the links that leave a cluster in Algorithm 1 form a new cluster, judged
   // like any other (a consistent wrong group clustered in time with true loops, or the reverse).
