@@ -578,56 +578,27 @@ struct Consensus {
       const int lookahead =
           std::min<int>(options->elimination_lookahead, static_cast<int>(by_index.size()));
       if (lookahead > 1) {
-        // Ordered: links left out, good member, score (only alternatives that pass).
+        // Ordered: links left out, good member, score (only leave-one-outs that pass).
         using Rank = std::tuple<size_t, bool, double>;
         Rank best;
         bool have_best = false;
-        // Leaves `left_out` out of the test; if the rest passes and that costs fewer links than
-        // the best so far, `victim` becomes the one to go.
-        auto consider = [&](const std::vector<int>& left_out, int victim) {
+        for (int k = 0; k < lookahead; ++k) {
+          const int left_out = by_index[k].second;
           std::vector<int> rest;
-          size_t dropped_links = 0;
           for (int c : tested) {
-            if (std::find(left_out.begin(), left_out.end(), c) == left_out.end()) {
-              rest.push_back(c);
-            } else {
-              dropped_links += links[c].size();
-            }
+            if (c != left_out) rest.push_back(c);
           }
-          if (rest.empty() || (have_best && dropped_links > std::get<0>(best))) return;
           const Solution without = Solve(sessions, rest, false);
-          if (!without.summary.IsSolutionUsable() ||
-              !Judge(rest, without.summary, incremental).pass) {
-            return;
-          }
-          const Rank rank{dropped_links,
-                          in_good[victim] != 0,
+          if (!without.summary.IsSolutionUsable()) continue;
+          if (!Judge(rest, without.summary, incremental).pass) continue;
+          const Rank rank{links[left_out].size(),
+                          in_good[left_out] != 0,
                           without.summary.final_chi2 / GraphThreshold(without.summary)};
           if (!have_best || rank < best) {
             best = rank;
             have_best = true;
-            worst = victim;
+            worst = left_out;
           }
-        };
-        for (int k = 0; k < lookahead; ++k) consider({by_index[k].second}, by_index[k].second);
-        if (incremental) {
-          // Several wrong single links, each absorbed by odometry, outnumber the lookahead: no
-          // single leave-one-out removes them, while leaving out the large true cluster that
-          // contradicts them passes (Intel + 100 random wrong loops: a true cluster of 659 links
-          // lost that way). Two groups are therefore also left out whole: all candidates (the
-          // good set alone) and all good clusters inconsistent here (index >= 1); if one passes
-          // with fewer links gone, its member of largest index goes first.
-          std::vector<int> candidates;
-          std::vector<int> inconsistent_good;
-          for (const auto& [index, c] : by_index) {  // by decreasing index
-            if (!in_good[c]) {
-              candidates.push_back(c);
-            } else if (index >= 1.0) {
-              inconsistent_good.push_back(c);
-            }
-          }
-          if (!candidates.empty()) consider(candidates, candidates.front());
-          if (!inconsistent_good.empty()) consider(inconsistent_good, inconsistent_good.front());
         }
       }
       if (incremental && options->revive_opponents && !in_good[worst]) {
