@@ -42,6 +42,37 @@ void VisitFields(IrrrOptions& options, Visitor& visit) {
   visit("optimizer", options.optimizer);
 }
 
+template <class Visitor>
+void VisitFields(DaemonChannels& channels, Visitor& visit) {
+  visit("keyframe", channels.keyframe);
+  visit("loop", channels.loop);
+  visit("session", channels.session);
+  visit("correction", channels.correction);
+  visit("verdicts", channels.verdicts);
+  visit("solution", channels.solution);
+  visit("status", channels.status);
+  visit("error", channels.error);
+}
+
+template <class Visitor>
+void VisitFields(DaemonLimits& limits, Visitor& visit) {
+  visit("queue_limit", limits.queue_limit);
+  visit("max_message_bytes", limits.max_message_bytes);
+  visit("max_sessions", limits.max_sessions);
+  visit("max_keyframes", limits.max_keyframes);
+  visit("max_hypotheses", limits.max_hypotheses);
+}
+
+template <class Visitor>
+void VisitFields(DaemonOptions& options, Visitor& visit) {
+  visit("daemon_id", options.daemon_id);
+  visit("lcm_url", options.lcm_url);
+  visit("log_level", options.log_level);
+  visit("status_hz", options.status_hz);
+  visit("channels", options.channels);
+  visit("limits", options.limits);
+}
+
 template <class Enum>
 using EnumNames = std::vector<std::pair<Enum, const char*>>;
 
@@ -128,6 +159,24 @@ class Reader {
     value = v->get<int>();
   }
 
+  void operator()(const char* key, int64_t& value) {
+    const json* v = Find(key);
+    if (v == nullptr) return;
+    if (!v->is_number_integer() ||
+        (v->is_number_unsigned() &&
+         v->get<uint64_t>() > uint64_t{std::numeric_limits<int64_t>::max()})) {
+      return Fail(key, "expected an integer, got " + Quote(*v));
+    }
+    value = v->get<int64_t>();
+  }
+
+  void operator()(const char* key, std::string& value) {
+    const json* v = Find(key);
+    if (v == nullptr) return;
+    if (!v->is_string()) return Fail(key, "expected a string, got " + Quote(*v));
+    value = v->get<std::string>();
+  }
+
   void operator()(const char* key, bool& value) {
     const json* v = Find(key);
     if (v == nullptr) return;
@@ -187,7 +236,7 @@ class Writer {
       for (const auto& [candidate, name] : NamesOf(T())) {
         if (candidate == value) (*object_)[key] = name;
       }
-    } else if constexpr (std::is_class_v<T>) {
+    } else if constexpr (std::is_class_v<T> && !std::is_same_v<T, std::string>) {
       json nested = json::object();
       Writer writer(&nested);
       VisitFields(value, writer);
@@ -249,6 +298,75 @@ nlohmann::json IrrrOptionsToJson(const IrrrOptions& options) {
   json object = json::object();
   Writer writer(&object);
   IrrrOptions copy = options;
+  VisitFields(copy, writer);
+  return object;
+}
+
+Status DaemonOptions::Validate() const {
+  if (daemon_id.empty() || daemon_id.size() > 64) {
+    return Status::Error("daemon_id: must have 1 to 64 characters");
+  }
+  static const std::set<std::string> levels = {
+      "trace", "debug", "info", "warn", "error", "critical", "off"};
+  if (levels.count(log_level) == 0) {
+    return Status::Error(
+        "log_level: expected trace, debug, info, warn, error, critical or off, "
+        "got \"" +
+        log_level + "\"");
+  }
+  if (!(status_hz > 0.0 && status_hz <= 100.0)) {
+    return Status::Error("status_hz: must be in (0, 100], got " + std::to_string(status_hz));
+  }
+  std::set<std::string> names;
+  DaemonChannels copy = channels;
+  Status status = Status::Ok();
+  auto check_channel = [&](const char* key, const std::string& name) {
+    if (!status.ok()) return;
+    if (name.empty()) status = Status::Error(std::string("channels.") + key + ": empty");
+    if (!names.insert(name).second) {
+      status = Status::Error(std::string("channels.") + key + ": \"" + name +
+                             "\" is used by another channel too");
+    }
+  };
+  VisitFields(copy, check_channel);
+  if (!status.ok()) return status;
+  if (limits.queue_limit < 1 || limits.max_message_bytes < 1024 || limits.max_sessions < 1 ||
+      limits.max_keyframes < 1 || limits.max_hypotheses < 0) {
+    return Status::Error(
+        "limits: queue_limit, max_sessions and max_keyframes must be >= 1, "
+        "max_message_bytes >= 1024, max_hypotheses >= 0");
+  }
+  return Status::Ok();
+}
+
+Status ParseDaemonConfig(const nlohmann::json& config,
+                         DaemonOptions* daemon,
+                         IrrrOptions* options) {
+  if (!config.is_object()) {
+    return Status::Error("configuration: expected an object, got " + Quote(config));
+  }
+  for (const auto& item : config.items()) {
+    if (item.key() != "daemon" && item.key() != "irrr") {
+      return Status::Error(item.key() + ": unknown key (known: daemon, irrr)");
+    }
+  }
+  DaemonOptions parsed_daemon = *daemon;
+  if (const auto it = config.find("daemon"); it != config.end()) {
+    Reader reader(*it, "daemon");
+    if (Status s = reader.Read(&parsed_daemon); !s.ok()) return s;
+    if (Status s = parsed_daemon.Validate(); !s.ok()) return Status::Error("daemon." + s.message());
+  }
+  IrrrOptions parsed_options = *options;
+  if (Status s = ParseIrrrConfig(config, &parsed_options); !s.ok()) return s;
+  *daemon = parsed_daemon;
+  *options = parsed_options;
+  return Status::Ok();
+}
+
+nlohmann::json DaemonOptionsToJson(const DaemonOptions& options) {
+  json object = json::object();
+  Writer writer(&object);
+  DaemonOptions copy = options;
   VisitFields(copy, writer);
   return object;
 }

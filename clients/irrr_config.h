@@ -14,6 +14,7 @@
 //     }
 //   }
 
+#include <cstdint>
 #include <string>
 
 #include <nlohmann/json.hpp>
@@ -43,6 +44,48 @@ Status ParseIrrrConfig(const nlohmann::json& config, IrrrOptions* options);
 
 // Every field of `options` under its JSON name (the inverse of ParseIrrrOptions).
 nlohmann::json IrrrOptionsToJson(const IrrrOptions& options);
+
+// LCM channel names of the daemon (the "daemon.channels" object).
+struct DaemonChannels {
+  std::string keyframe = "IRRR_KEYFRAME";      // in: keyframe_t
+  std::string loop = "IRRR_LOOP";              // in: loop_hypothesis_t
+  std::string session = "IRRR_SESSION";        // in: session_event_t
+  std::string correction = "IRRR_CORRECTION";  // out: correction_t
+  std::string verdicts = "IRRR_VERDICTS";      // out: verdicts_t
+  std::string solution = "IRRR_SOLUTION";      // out: solution_t
+  std::string status = "IRRR_STATUS";          // out: status_t
+  std::string error = "IRRR_ERROR";            // out: error_t
+};
+
+// What the daemon accepts before it answers "limit reached" (the "daemon.limits" object).
+struct DaemonLimits {
+  int queue_limit = 1000000;          // inputs received but not applied yet
+  int max_message_bytes = 1 << 20;    // one encoded input message
+  int max_sessions = 1000;            // sessions over the daemon's life
+  int64_t max_keyframes = 10000000;   // poses over all sessions
+  int64_t max_hypotheses = 10000000;  // loop hypotheses over all sessions
+};
+
+// The daemon's own settings (the "daemon" object of config/irrrd.json).
+struct DaemonOptions {
+  std::string daemon_id = "irrrd";  // sender name of everything it publishes
+  std::string lcm_url;              // "" = LCM's default (env LCM_DEFAULT_URL, else udpm ttl=0)
+  std::string log_level = "info";   // spdlog: trace, debug, info, warn, error, critical, off
+  double status_hz = 1.0;           // heartbeat rate, (0, 100]
+  DaemonChannels channels;
+  DaemonLimits limits;
+
+  Status Validate() const;
+};
+
+// The daemon's whole configuration: a "daemon" object (DaemonOptions) and an "irrr" object
+// (IrrrOptions), both optional, nothing else. Present keys replace the values held, as in
+// ParseIrrrOptions; unknown keys (at any level), wrong types and invalid values fail, named by
+// their full path. Both outputs are untouched on failure.
+Status ParseDaemonConfig(const nlohmann::json& config, DaemonOptions* daemon, IrrrOptions* options);
+
+// Every field of `options` under its JSON name (the inverse of ParseDaemonConfig's "daemon").
+nlohmann::json DaemonOptionsToJson(const DaemonOptions& options);
 
 }  // namespace irrr
 

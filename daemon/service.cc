@@ -1,0 +1,833 @@
+#include "daemon/service.h"
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <cstring>
+#include <set>
+#include <type_traits>
+#include <utility>
+
+#include <spdlog/spdlog.h>
+
+#include "daemon/wire.h"
+#include "irrr/correction_t.hpp"
+#include "irrr/error_t.hpp"
+#include "irrr/solution_t.hpp"
+#include "irrr/verdicts_t.hpp"
+
+namespace irrr {
+namespace {
+
+constexpr size_t kMaxSenderBytes = 64;
+
+template <class Message>
+std::vector<uint8_t> Encode(const Message& message) {
+  std::vector<uint8_t> bytes(message.getEncodedSize());
+  message.encode(bytes.data(), 0, static_cast<int>(bytes.size()));
+  return bytes;
+}
+
+// One input as received, checked field by field, waiting for the worker.
+struct Input {
+  enum class Kind { kKeyframe, kLoop, kSession };
+  Kind kind = Kind::kKeyframe;
+  keyframe_t keyframe{};
+  loop_hypothesis_t loop{};
+  session_event_t session{};
+  int64_t received_utime = 0;
+};
+
+// What an error_t says about the input it answers.
+struct Rejection {
+  std::string channel;
+  std::string sender;
+  int64_t seq = -1;
+  int32_t robot_id = -1;
+  int32_t session_id = -1;
+  int64_t key = -1;
+  int64_t hypothesis_id = -1;
+  std::string field;
+  std::string reason;
+};
+
+Rejection RejectionOf(const std::string& channel, const keyframe_t& m) {
+  Rejection r;
+  r.channel = channel;
+  r.sender = m.header.sender;
+  r.seq = m.header.seq;
+  r.robot_id = m.robot_id;
+  r.session_id = m.session_id;
+  r.key = m.key;
+  return r;
+}
+
+Rejection RejectionOf(const std::string& channel, const loop_hypothesis_t& m) {
+  Rejection r;
+  r.channel = channel;
+  r.sender = m.header.sender;
+  r.seq = m.header.seq;
+  r.hypothesis_id = m.hypothesis_id;
+  return r;
+}
+
+Rejection RejectionOf(const std::string& channel, const session_event_t& m) {
+  Rejection r;
+  r.channel = channel;
+  r.sender = m.header.sender;
+  r.seq = m.header.seq;
+  r.robot_id = m.robot_id;
+  r.session_id = m.session_id;
+  return r;
+}
+
+// Field checks that need no state: (field, reason) of the first failure, or an empty field.
+std::pair<std::string, std::string> Failure(const Status& s) {
+  const std::string& m = s.message();
+  const size_t colon = m.find(": ");
+  if (colon == std::string::npos) return {"", m};
+  return {m.substr(0, colon), m.substr(colon + 2)};
+}
+
+template <class Pose>
+Status CheckPoseAndInformation(const pose_t& pose,
+                               const std::string& pose_field,
+                               const double information[6][6],
+                               const std::string& information_field) {
+  Pose p;
+  if (Status s = PoseFromWire(pose, pose_field, &p); !s.ok()) return s;
+  typename Pose::Matrix m;
+  return InformationFromWire<Pose>(information, information_field, &m);
+}
+
+Status CheckDim(int8_t dim) {
+  if (dim != keyframe_t::DIM_SE2 && dim != keyframe_t::DIM_SE3) {
+    return Status::Error("dim: " + std::to_string(dim) + " is neither DIM_SE2 (2) nor DIM_SE3 (3)");
+  }
+  return Status::Ok();
+}
+
+Status CheckFields(const keyframe_t& m) {
+  if (Status s = CheckDim(m.dim); !s.ok()) return s;
+  if (m.robot_id < 0) return Status::Error("robot_id: negative");
+  if (m.session_id < 0) return Status::Error("session_id: negative");
+  if (m.key < 0) return Status::Error("key: negative");
+  if (m.has_odom_edge != 0 && m.has_odom_edge != 1)
+    return Status::Error("has_odom_edge: not 0 or 1");
+  const bool se2 = m.dim == keyframe_t::DIM_SE2;
+  Pose2 p2;
+  Pose3 p3;
+  if (Status s = se2 ? PoseFromWire(m.odom_pose, "odom_pose", &p2)
+                     : PoseFromWire(m.odom_pose, "odom_pose", &p3);
+      !s.ok()) {
+    return s;
+  }
+  if (!m.has_odom_edge) return Status::Ok();
+  return se2 ? CheckPoseAndInformation<Pose2>(
+                   m.odom_delta, "odom_delta", m.information, "information")
+             : CheckPoseAndInformation<Pose3>(
+                   m.odom_delta, "odom_delta", m.information, "information");
+}
+
+Status CheckFields(const loop_hypothesis_t& m) {
+  if (Status s = CheckDim(m.dim); !s.ok()) return s;
+  if (m.hypothesis_id < 0) return Status::Error("hypothesis_id: negative");
+  if (m.robot_from < 0 || m.robot_to < 0) return Status::Error("robot_from/robot_to: negative");
+  if (m.session_from < 0 || m.session_to < 0) {
+    return Status::Error("session_from/session_to: negative");
+  }
+  if (m.key_from < 0 || m.key_to < 0) return Status::Error("key_from/key_to: negative");
+  if (!std::isfinite(m.score)) return Status::Error("score: not a finite number");
+  return m.dim == keyframe_t::DIM_SE2
+             ? CheckPoseAndInformation<Pose2>(
+                   m.measurement, "measurement", m.information, "information")
+             : CheckPoseAndInformation<Pose3>(
+                   m.measurement, "measurement", m.information, "information");
+}
+
+Status CheckFields(const session_event_t& m) {
+  if (m.event < session_event_t::START || m.event > session_event_t::FLUSH) {
+    return Status::Error("event: " + std::to_string(m.event) +
+                         " is not START, PROGRESS, END or FLUSH");
+  }
+  if (m.event != session_event_t::FLUSH && (m.robot_id < 0 || m.session_id < 0)) {
+    return Status::Error("robot_id/session_id: negative");
+  }
+  return Status::Ok();
+}
+
+bool SameDecision(const LoopDecision& a, const LoopDecision& b) {
+  auto same = [](double x, double y) { return x == y || (std::isnan(x) && std::isnan(y)); };
+  return a.state == b.state && a.cluster == b.cluster && a.step == b.step && same(a.chi2, b.chi2) &&
+         same(a.threshold, b.threshold);
+}
+
+using SessionName = std::pair<int32_t, int32_t>;  // (robot_id, session_id)
+
+struct Hypothesis {
+  std::string sender;
+  int64_t id = -1;
+  int32_t robot_from = 0;
+  int32_t session_from = 0;
+  int64_t key_from = 0;
+  int32_t robot_to = 0;
+  int32_t session_to = 0;
+  int64_t key_to = 0;
+};
+
+// One Irrr (one pose type) and the wire identities of what it holds.
+template <class Pose>
+struct Engine {
+  explicit Engine(const IrrrOptions& options) : irrr(options) {}
+
+  struct SessionInfo {
+    SessionName name;
+    int order = 0;  // creation order over both engines
+    int64_t first_key = 0;
+  };
+
+  Irrr<Pose> irrr;
+  std::vector<SessionInfo> sessions;  // by Irrr session index
+  std::vector<Pose> odom_pose;        // by Irrr vertex index
+  std::map<int, Hypothesis> hypothesis_of_edge;
+  std::map<int, LoopDecision> published;  // last decision published, by Irrr edge
+
+  int64_t KeyOf(int session, int position) const { return sessions[session].first_key + position; }
+};
+
+}  // namespace
+
+struct Service::State {
+  State(const DaemonOptions& d, const IrrrOptions& o, MessageSink* s)
+      : daemon(d), options(o), sink(s), se2(o), se3(o), start_utime(NowUtime()) {}
+
+  const DaemonOptions daemon;
+  const IrrrOptions options;
+  MessageSink* const sink;
+
+  // Receiving thread -> worker.
+  mutable std::mutex queue_mutex;
+  std::condition_variable queue_changed;
+  std::deque<Input> queue;
+  bool wake = false;
+  // Inputs received and not applied yet: the queue and the worker's current batch.
+  std::atomic<int> unapplied{0};
+
+  // Counters for status_t (both threads).
+  mutable std::mutex stats_mutex;
+  status_t stats{};
+  std::map<std::string, sender_count_t> senders;
+
+  // Outgoing sequence numbers, per channel.
+  std::mutex publish_mutex;
+  std::map<std::string, int64_t> next_seq;
+
+  // Worker only.
+  Engine<Pose2> se2;
+  Engine<Pose3> se3;
+  struct SessionRef {
+    int8_t dim = 0;
+    int index = -1;  // in its engine
+  };
+  std::map<SessionName, SessionRef> sessions;
+  struct HypothesisRef {
+    int8_t dim = 0;
+    int edge = -1;
+  };
+  std::map<std::pair<std::string, int64_t>, HypothesisRef> hypotheses;
+  std::vector<HypothesisRef> hypothesis_order;
+  int num_sessions = 0;
+  int64_t num_keyframes = 0;
+  int64_t next_vertex_id = 0;
+  int64_t solution_id = 0;
+  const int64_t start_utime;
+
+  template <class Message>
+  void Publish(const std::string& channel, Message* message) {
+    std::lock_guard<std::mutex> lock(publish_mutex);
+    message->header.utime = NowUtime();
+    message->header.seq = next_seq[channel]++;
+    message->header.sender = daemon.daemon_id;
+    sink->Send(channel, Encode(*message));
+  }
+
+  sender_count_t& SenderLocked(const std::string& sender) {
+    auto it = senders.find(sender);
+    if (it == senders.end()) {
+      sender_count_t count{};
+      count.sender = sender;
+      count.last_seq_keyframe = count.last_seq_loop = count.last_seq_session = -1;
+      it = senders.emplace(sender, count).first;
+    }
+    return it->second;
+  }
+
+  void Reject(const Rejection& r) {
+    spdlog::warn("rejected {} from \"{}\" (seq {}): {}: {}",
+                 r.channel,
+                 r.sender,
+                 r.seq,
+                 r.field.empty() ? "message" : r.field,
+                 r.reason);
+    {
+      std::lock_guard<std::mutex> lock(stats_mutex);
+      ++stats.n_errors;
+      stats.last_error = r.channel + ": " + (r.field.empty() ? "" : r.field + ": ") + r.reason;
+      if (!r.sender.empty()) ++SenderLocked(r.sender).rejected;
+    }
+    error_t error{};
+    error.daemon_id = daemon.daemon_id;
+    error.channel = r.channel;
+    error.sender = r.sender;
+    error.seq = r.seq;
+    error.robot_id = r.robot_id;
+    error.session_id = r.session_id;
+    error.key = r.key;
+    error.hypothesis_id = r.hypothesis_id;
+    error.field = r.field;
+    error.reason = r.reason;
+    Publish(daemon.channels.error, &error);
+  }
+
+  void Reject(Rejection r, const Status& s) {
+    std::tie(r.field, r.reason) = Failure(s);
+    Reject(r);
+  }
+
+  // Receiving thread: the common part of every input message once decoded.
+  template <class Message>
+  bool Admit(const std::string& channel, const Message& m, int64_t sender_count_t::*last_seq) {
+    if (m.header.sender.empty() || m.header.sender.size() > kMaxSenderBytes) {
+      Rejection r = RejectionOf(channel, m);
+      r.field = "header.sender";
+      r.reason = "must have 1 to " + std::to_string(kMaxSenderBytes) + " bytes";
+      Reject(r);
+      return false;
+    }
+    {
+      std::lock_guard<std::mutex> lock(stats_mutex);
+      sender_count_t& count = SenderLocked(m.header.sender);
+      ++count.received;
+      int64_t& last = count.*last_seq;
+      if (last >= 0 && m.header.seq > last + 1) count.gaps += m.header.seq - last - 1;
+      last = std::max(last, m.header.seq);
+    }
+    if (Status s = CheckFields(m); !s.ok()) {
+      Reject(RejectionOf(channel, m), s);
+      return false;
+    }
+    return true;
+  }
+
+  void Enqueue(Input input, const Rejection& if_full) {
+    {
+      std::lock_guard<std::mutex> lock(queue_mutex);
+      if (unapplied.load() < daemon.limits.queue_limit) {
+        ++unapplied;
+        queue.push_back(std::move(input));
+        queue_changed.notify_one();
+        return;
+      }
+    }
+    Rejection r = if_full;
+    r.reason = "input queue full (daemon.limits.queue_limit " +
+               std::to_string(daemon.limits.queue_limit) + "): not applied";
+    Reject(r);
+  }
+
+  // ---- Worker ----
+
+  Status AddKeyframe(const keyframe_t& m) {
+    const SessionName name{m.robot_id, m.session_id};
+    auto it = sessions.find(name);
+    if (it == sessions.end()) {
+      if (static_cast<int>(sessions.size()) >= daemon.limits.max_sessions) {
+        return Status::Error("session_id: daemon.limits.max_sessions (" +
+                             std::to_string(daemon.limits.max_sessions) + ") reached");
+      }
+      it = sessions.emplace(name, SessionRef{m.dim, -1}).first;
+    } else if (it->second.dim != m.dim) {
+      return Status::Error("dim: the session's keyframes are " +
+                           std::string(it->second.dim == keyframe_t::DIM_SE2 ? "SE(2)" : "SE(3)"));
+    }
+    if (num_keyframes >= daemon.limits.max_keyframes) {
+      return Status::Error("key: daemon.limits.max_keyframes (" +
+                           std::to_string(daemon.limits.max_keyframes) + ") reached");
+    }
+    const Status s = m.dim == keyframe_t::DIM_SE2 ? AddKeyframeTo(se2, m, &it->second)
+                                                  : AddKeyframeTo(se3, m, &it->second);
+    if (s.ok()) {
+      ++num_keyframes;
+      std::lock_guard<std::mutex> lock(stats_mutex);
+      stats.n_keyframes = num_keyframes;
+      stats.n_sessions = num_sessions;
+    }
+    return s;
+  }
+
+  template <class Pose>
+  Status AddKeyframeTo(Engine<Pose>& engine, const keyframe_t& m, SessionRef* ref) {
+    Pose odom_pose;
+    IRRR_CHECK(PoseFromWire(m.odom_pose, "odom_pose", &odom_pose).ok());
+    const bool first = ref->index < 0;
+    Pose delta;
+    typename Pose::Matrix information;
+    if (!first) {
+      const auto& vertices = engine.irrr.graph().session(ref->index).vertices;
+      const int64_t last_key = engine.KeyOf(ref->index, static_cast<int>(vertices.size()) - 1);
+      if (m.key <= last_key) {
+        return Status::Error("key: duplicate (key " + std::to_string(m.key) + " of this session " +
+                             "was received already; the last is " + std::to_string(last_key) + ")");
+      }
+      if (m.key != last_key + 1) {
+        return Status::Error("key: expected " + std::to_string(last_key + 1) + ", got " +
+                             std::to_string(m.key) + " (keys of a session are consecutive)");
+      }
+      if (!m.has_odom_edge) {
+        return Status::Error("has_odom_edge: 0, but only a session's first key has no odometry");
+      }
+      IRRR_CHECK(PoseFromWire(m.odom_delta, "odom_delta", &delta).ok());
+      IRRR_CHECK(InformationFromWire<Pose>(m.information, "information", &information).ok());
+    }
+    int session = ref->index;
+    if (first) {
+      const int64_t id = (int64_t{m.robot_id} << 32) | static_cast<uint32_t>(m.session_id);
+      IRRR_CHECK(engine.irrr.AddSession(id, &session).ok());
+      ref->index = session;
+      engine.sessions.push_back({SessionName{m.robot_id, m.session_id}, num_sessions++, m.key});
+    }
+    int vertex = -1;
+    // Only a later pose can fail here (a stamp older than the session's last); a first pose
+    // has passed every check Irrr makes.
+    const Status added = engine.irrr.AddPose(session,
+                                             next_vertex_id,
+                                             1e-6 * static_cast<double>(m.stamp_utime),
+                                             first ? nullptr : &delta,
+                                             first ? nullptr : &information,
+                                             &vertex);
+    IRRR_CHECK(added.ok() || !first);
+    if (!added.ok()) return Status::Error("stamp_utime: " + added.message());
+    ++next_vertex_id;
+    engine.odom_pose.resize(vertex + 1);
+    engine.odom_pose[vertex] = odom_pose;
+    return Status::Ok();
+  }
+
+  // The Irrr vertex of (robot, session, key) of `engine`, or an error naming `which` end.
+  template <class Pose>
+  Status FindVertex(const Engine<Pose>& engine,
+                    int32_t robot,
+                    int32_t session,
+                    int64_t key,
+                    const std::string& which,
+                    int* vertex) const {
+    const auto it = sessions.find({robot, session});
+    const std::string name =
+        "robot " + std::to_string(robot) + ", session " + std::to_string(session);
+    if (it == sessions.end()) {
+      return Status::Error("session_" + which + ": unknown session (" + name + ")");
+    }
+    if (it->second.dim != WireDim<Pose>()) {
+      return Status::Error("dim: session (" + name + ") has the other pose type");
+    }
+    const auto& vertices = engine.irrr.graph().session(it->second.index).vertices;
+    const int64_t first = engine.sessions[it->second.index].first_key;
+    if (key < first || key >= first + static_cast<int64_t>(vertices.size())) {
+      return Status::Error("key_" + which + ": unknown key " + std::to_string(key) + " (" + name +
+                           " has keys " + std::to_string(first) + ".." +
+                           std::to_string(first + static_cast<int64_t>(vertices.size()) - 1) + ")");
+    }
+    *vertex = vertices[key - first];
+    return Status::Ok();
+  }
+
+  Status AddLoop(const loop_hypothesis_t& m) {
+    const auto id = std::make_pair(m.header.sender, m.hypothesis_id);
+    if (hypotheses.count(id) != 0) {
+      return Status::Error("hypothesis_id: duplicate (" + std::to_string(m.hypothesis_id) +
+                           " of this sender was received already)");
+    }
+    if (static_cast<int64_t>(hypotheses.size()) >= daemon.limits.max_hypotheses) {
+      return Status::Error("hypothesis_id: daemon.limits.max_hypotheses (" +
+                           std::to_string(daemon.limits.max_hypotheses) + ") reached");
+    }
+    return m.dim == keyframe_t::DIM_SE2 ? AddLoopTo(se2, m) : AddLoopTo(se3, m);
+  }
+
+  template <class Pose>
+  Status AddLoopTo(Engine<Pose>& engine, const loop_hypothesis_t& m) {
+    int from = -1;
+    int to = -1;
+    if (Status s = FindVertex(engine, m.robot_from, m.session_from, m.key_from, "from", &from);
+        !s.ok()) {
+      return s;
+    }
+    if (Status s = FindVertex(engine, m.robot_to, m.session_to, m.key_to, "to", &to); !s.ok()) {
+      return s;
+    }
+    Pose measurement;
+    typename Pose::Matrix information;
+    IRRR_CHECK(PoseFromWire(m.measurement, "measurement", &measurement).ok());
+    IRRR_CHECK(InformationFromWire<Pose>(m.information, "information", &information).ok());
+    int edge = -1;
+    if (Status s = engine.irrr.AddLoop(from, to, measurement, information, &edge); !s.ok()) {
+      return Status::Error("key_to: " + s.message());
+    }
+    Hypothesis h;
+    h.sender = m.header.sender;
+    h.id = m.hypothesis_id;
+    h.robot_from = m.robot_from;
+    h.session_from = m.session_from;
+    h.key_from = m.key_from;
+    h.robot_to = m.robot_to;
+    h.session_to = m.session_to;
+    h.key_to = m.key_to;
+    engine.hypothesis_of_edge.emplace(edge, h);
+    hypotheses.emplace(std::make_pair(h.sender, h.id), HypothesisRef{WireDim<Pose>(), edge});
+    hypothesis_order.push_back(HypothesisRef{WireDim<Pose>(), edge});
+    std::lock_guard<std::mutex> lock(stats_mutex);
+    stats.n_hypotheses = static_cast<int64_t>(hypothesis_order.size());
+    return Status::Ok();
+  }
+
+  Status ApplySessionEvent(const session_event_t& m) {
+    if (m.event == session_event_t::FLUSH) {
+      se2.irrr.Flush();
+      se3.irrr.Flush();
+      return Status::Ok();
+    }
+    if (m.event != session_event_t::END) return Status::Ok();
+    const auto it = sessions.find({m.robot_id, m.session_id});
+    if (it == sessions.end()) {
+      return Status::Error("session_id: END of an unknown session (robot " +
+                           std::to_string(m.robot_id) + ", session " +
+                           std::to_string(m.session_id) + ")");
+    }
+    const Status s = it->second.dim == keyframe_t::DIM_SE2 ? se2.irrr.EndSession(it->second.index)
+                                                           : se3.irrr.EndSession(it->second.index);
+    return s.ok() ? s : Status::Error("event: " + s.message());
+  }
+
+  void Apply(const Input& input) {
+    switch (input.kind) {
+      case Input::Kind::kKeyframe:
+        if (Status s = AddKeyframe(input.keyframe); !s.ok()) {
+          Reject(RejectionOf(daemon.channels.keyframe, input.keyframe), s);
+        }
+        break;
+      case Input::Kind::kLoop:
+        if (Status s = AddLoop(input.loop); !s.ok()) {
+          Reject(RejectionOf(daemon.channels.loop, input.loop), s);
+        }
+        break;
+      case Input::Kind::kSession:
+        if (Status s = ApplySessionEvent(input.session); !s.ok()) {
+          Reject(RejectionOf(daemon.channels.session, input.session), s);
+        }
+        break;
+    }
+    RunSteps(se2, input.received_utime);
+    RunSteps(se3, input.received_utime);
+  }
+
+  template <class Pose>
+  void RunSteps(Engine<Pose>& engine, int64_t closed_utime) {
+    while (engine.irrr.HasPendingStep()) {
+      const StepResult step = engine.irrr.RunStep();
+      PublishCorrection(engine, step, closed_utime);
+    }
+  }
+
+  template <class Pose>
+  void PublishCorrection(Engine<Pose>& engine, const StepResult& step, int64_t closed_utime) {
+    const Irrr<Pose>& irrr = engine.irrr;
+    const std::vector<Pose>& estimate = irrr.estimate();
+    const std::vector<int> component_of = irrr.Components();
+    // A component is named by the creation order of its earliest session.
+    std::vector<int> component_name;
+    for (size_t s = 0; s < component_of.size(); ++s) {
+      const int c = component_of[s];
+      if (c >= static_cast<int>(component_name.size())) component_name.resize(c + 1, -1);
+      if (component_name[c] < 0) component_name[c] = engine.sessions[s].order;
+    }
+
+    correction_t correction{};
+    correction.solution_id = ++solution_id;
+    correction.daemon_start_utime = start_utime;
+    correction.step = step.step;
+    correction.cluster = step.cluster;
+    correction.closed_utime = closed_utime;
+    correction.solves = step.solves;
+    correction.chi2 = step.final_summary.final_chi2;
+
+    std::vector<solution_t> chunks;
+    for (int s : step.sessions) {
+      const auto& vertices = irrr.graph().session(s).vertices;
+      if (vertices.empty()) continue;
+      const int component = component_name[component_of[s]];
+      session_transform_t transform{};
+      transform.robot_id = engine.sessions[s].name.first;
+      transform.session_id = engine.sessions[s].name.second;
+      transform.component = component;
+      const int last = vertices.back();
+      transform.map_T_odom = PoseToWire(estimate[last] * engine.odom_pose[last].Inverse());
+      transform.latest_key = engine.KeyOf(s, static_cast<int>(vertices.size()) - 1);
+      correction.sessions.push_back(transform);
+      for (size_t begin = 0; begin < vertices.size(); begin += solution_t::MAX_POSES) {
+        const size_t end = std::min(vertices.size(), begin + solution_t::MAX_POSES);
+        solution_t chunk{};
+        chunk.solution_id = correction.solution_id;
+        chunk.chunk_index = static_cast<int32_t>(chunks.size());
+        chunk.robot_id = transform.robot_id;
+        chunk.session_id = transform.session_id;
+        chunk.component = component;
+        chunk.first_key = engine.KeyOf(s, static_cast<int>(begin));
+        for (size_t k = begin; k < end; ++k)
+          chunk.poses.push_back(PoseToWire(estimate[vertices[k]]));
+        chunk.n_poses = static_cast<int32_t>(chunk.poses.size());
+        chunks.push_back(std::move(chunk));
+      }
+    }
+    correction.n_sessions = static_cast<int32_t>(correction.sessions.size());
+
+    std::vector<verdicts_t> verdict_chunks;
+    int64_t accepted = 0;
+    int64_t rejected = 0;
+    for (const auto& [edge, h] : engine.hypothesis_of_edge) {
+      const LoopDecision& d = irrr.decision(edge);
+      accepted += d.state == LoopState::kAccepted ? 1 : 0;
+      rejected += d.state != LoopState::kAccepted && d.state != LoopState::kPending ? 1 : 0;
+      auto it = engine.published.find(edge);
+      if (it != engine.published.end() && SameDecision(it->second, d)) continue;
+      engine.published[edge] = d;
+      if (verdict_chunks.empty() || verdict_chunks.back().n_verdicts >= verdicts_t::MAX_VERDICTS) {
+        verdicts_t chunk{};
+        chunk.solution_id = correction.solution_id;
+        chunk.chunk_index = static_cast<int32_t>(verdict_chunks.size());
+        verdict_chunks.push_back(std::move(chunk));
+      }
+      verdict_t v{};
+      v.sender = h.sender;
+      v.hypothesis_id = h.id;
+      v.robot_from = h.robot_from;
+      v.session_from = h.session_from;
+      v.key_from = h.key_from;
+      v.robot_to = h.robot_to;
+      v.session_to = h.session_to;
+      v.key_to = h.key_to;
+      v.cluster = d.cluster;
+      v.state = LoopStateToWire(d.state);
+      v.step = d.step;
+      v.chi2 = d.chi2;
+      v.threshold = d.threshold;
+      verdicts_t& chunk = verdict_chunks.back();
+      chunk.verdicts.push_back(std::move(v));
+      chunk.n_verdicts = static_cast<int32_t>(chunk.verdicts.size());
+    }
+    correction.n_verdict_chunks = static_cast<int32_t>(verdict_chunks.size());
+    correction.n_pose_chunks = static_cast<int32_t>(chunks.size());
+
+    correction.published_utime = NowUtime();
+    Publish(daemon.channels.correction, &correction);
+    for (verdicts_t& chunk : verdict_chunks) Publish(daemon.channels.verdicts, &chunk);
+    for (solution_t& chunk : chunks) Publish(daemon.channels.solution, &chunk);
+
+    const double latency_ms = 1e-3 * static_cast<double>(correction.published_utime - closed_utime);
+    spdlog::info(
+        "step {} (cluster {}): {} sessions in {} component(s) re-estimated, {} verdict(s) "
+        "changed, {} solves, {:.1f} ms after its cluster closed",
+        step.step,
+        step.cluster,
+        correction.n_sessions,
+        std::set<int>(component_of.begin(), component_of.end()).size(),
+        verdict_chunks.empty() ? 0
+                               : (verdict_chunks.size() - 1) * verdicts_t::MAX_VERDICTS +
+                                     verdict_chunks.back().n_verdicts,
+        step.solves,
+        latency_ms);
+    std::lock_guard<std::mutex> lock(stats_mutex);
+    stats.solution_id = correction.solution_id;
+    stats.last_step_latency_ms = static_cast<float>(latency_ms);
+    ++stats.n_steps;
+    EngineCounts<Pose>() = {
+        accepted,
+        rejected,
+        component_of.empty() ? 0 : *std::max_element(component_of.begin(), component_of.end()) + 1};
+  }
+
+  // Per engine: accepted, rejected, components (for status_t).
+  struct Counts {
+    int64_t accepted = 0;
+    int64_t rejected = 0;
+    int components = 0;
+  };
+  Counts counts_se2;
+  Counts counts_se3;
+  template <class Pose>
+  Counts& EngineCounts() {
+    if constexpr (std::is_same_v<Pose, Pose2>) {
+      return counts_se2;
+    } else {
+      return counts_se3;
+    }
+  }
+};
+
+Service::Service(const DaemonOptions& daemon, const IrrrOptions& options, MessageSink* sink)
+    : state_(std::make_unique<State>(daemon, options, sink)) {}
+
+Service::~Service() = default;
+
+bool Service::Receive(const std::string& channel, const uint8_t* data, int size) {
+  State& st = *state_;
+  const DaemonChannels& ch = st.daemon.channels;
+  Input input;
+  input.received_utime = NowUtime();
+  auto reject_undecodable = [&](const std::string& type, const std::string& why) {
+    {
+      std::lock_guard<std::mutex> lock(st.stats_mutex);
+      ++st.stats.n_undecodable;
+    }
+    Rejection r;
+    r.channel = channel;
+    r.reason = why + " (expected irrr." + type + ")";
+    st.Reject(r);
+    return false;
+  };
+  auto type_of = [&]() -> std::string {
+    if (channel == ch.keyframe) return "keyframe_t";
+    if (channel == ch.loop) return "loop_hypothesis_t";
+    return "session_event_t";
+  };
+  if (channel != ch.keyframe && channel != ch.loop && channel != ch.session) return false;
+  if (size > st.daemon.limits.max_message_bytes) {
+    return reject_undecodable(type_of(),
+                              std::to_string(size) + " bytes, more than daemon.limits." +
+                                  "max_message_bytes (" +
+                                  std::to_string(st.daemon.limits.max_message_bytes) + ")");
+  }
+  // decode() checks the fingerprint, the lengths and the array sizes; it returns < 0 on failure.
+  auto decode = [&](auto* message) { return message->decode(data, 0, size) == size; };
+  if (channel == ch.keyframe) {
+    if (!decode(&input.keyframe)) return reject_undecodable(type_of(), "cannot decode");
+    if (!st.Admit(channel, input.keyframe, &sender_count_t::last_seq_keyframe)) return false;
+    input.kind = Input::Kind::kKeyframe;
+    const Rejection if_full = RejectionOf(channel, input.keyframe);
+    st.Enqueue(std::move(input), if_full);
+    return false;
+  }
+  if (channel == ch.loop) {
+    if (!decode(&input.loop)) return reject_undecodable(type_of(), "cannot decode");
+    if (!st.Admit(channel, input.loop, &sender_count_t::last_seq_loop)) return false;
+    input.kind = Input::Kind::kLoop;
+    const Rejection if_full = RejectionOf(channel, input.loop);
+    st.Enqueue(std::move(input), if_full);
+    return false;
+  }
+  if (!decode(&input.session)) return reject_undecodable(type_of(), "cannot decode");
+  if (!st.Admit(channel, input.session, &sender_count_t::last_seq_session)) return false;
+  input.kind = Input::Kind::kSession;
+  const bool progress = input.session.event == session_event_t::PROGRESS;
+  const Rejection if_full = RejectionOf(channel, input.session);
+  st.Enqueue(std::move(input), if_full);
+  return progress;
+}
+
+int Service::ProcessQueued(std::chrono::milliseconds wait) {
+  State& st = *state_;
+  std::deque<Input> batch;
+  {
+    std::unique_lock<std::mutex> lock(st.queue_mutex);
+    st.queue_changed.wait_for(lock, wait, [&] { return !st.queue.empty() || st.wake; });
+    st.wake = false;
+    batch.swap(st.queue);
+  }
+  for (const Input& input : batch) {
+    st.Apply(input);
+    --st.unapplied;
+  }
+  return static_cast<int>(batch.size());
+}
+
+void Service::WakeWorker() {
+  std::lock_guard<std::mutex> lock(state_->queue_mutex);
+  state_->wake = true;
+  state_->queue_changed.notify_all();
+}
+
+int Service::QueueDepth() const { return state_->unapplied.load(); }
+
+status_t Service::CurrentStatus() const {
+  const State& st = *state_;
+  const int depth = QueueDepth();
+  std::lock_guard<std::mutex> lock(st.stats_mutex);
+  status_t status = st.stats;
+  status.daemon_id = st.daemon.daemon_id;
+  status.start_utime = st.start_utime;
+  status.queue_depth = depth;
+  status.queue_limit = st.daemon.limits.queue_limit;
+  status.n_accepted = st.counts_se2.accepted + st.counts_se3.accepted;
+  status.n_rejected = st.counts_se2.rejected + st.counts_se3.rejected;
+  status.n_components = st.counts_se2.components + st.counts_se3.components;
+  for (const auto& [name, count] : st.senders) status.senders.push_back(count);
+  status.n_senders = static_cast<int32_t>(status.senders.size());
+  return status;
+}
+
+void Service::PublishStatus(int8_t state) {
+  State& st = *state_;
+  status_t status = CurrentStatus();
+  status.state = state;
+  if (state == status_t::RUNNING && status.queue_depth >= st.daemon.limits.queue_limit * 9 / 10) {
+    status.state = status_t::DEGRADED;
+  }
+  st.Publish(st.daemon.channels.status, &status);
+}
+
+std::vector<HypothesisDecision> Service::Decisions() const {
+  const State& st = *state_;
+  std::vector<HypothesisDecision> out;
+  out.reserve(st.hypothesis_order.size());
+  for (const State::HypothesisRef& ref : st.hypothesis_order) {
+    const bool se2 = ref.dim == keyframe_t::DIM_SE2;
+    const Hypothesis& h =
+        se2 ? st.se2.hypothesis_of_edge.at(ref.edge) : st.se3.hypothesis_of_edge.at(ref.edge);
+    out.push_back(
+        {h.sender, h.id, se2 ? st.se2.irrr.decision(ref.edge) : st.se3.irrr.decision(ref.edge)});
+  }
+  return out;
+}
+
+namespace {
+
+template <class Pose>
+void AppendEstimates(const Engine<Pose>& engine,
+                     std::vector<std::pair<int, Service::SessionEstimate>>* out) {
+  for (size_t s = 0; s < engine.sessions.size(); ++s) {
+    Service::SessionEstimate e;
+    e.robot_id = engine.sessions[s].name.first;
+    e.session_id = engine.sessions[s].name.second;
+    e.first_key = engine.sessions[s].first_key;
+    e.dim = WireDim<Pose>();
+    for (int v : engine.irrr.graph().session(static_cast<int>(s)).vertices) {
+      e.poses.push_back(PoseToWire(engine.irrr.estimate()[v]));
+    }
+    out->emplace_back(engine.sessions[s].order, std::move(e));
+  }
+}
+
+}  // namespace
+
+std::vector<Service::SessionEstimate> Service::Estimates() const {
+  std::vector<std::pair<int, SessionEstimate>> ordered;
+  AppendEstimates(state_->se2, &ordered);
+  AppendEstimates(state_->se3, &ordered);
+  std::sort(ordered.begin(), ordered.end(), [](const auto& a, const auto& b) {
+    return a.first < b.first;
+  });
+  std::vector<SessionEstimate> out;
+  for (auto& [order, e] : ordered) out.push_back(std::move(e));
+  return out;
+}
+
+}  // namespace irrr
