@@ -21,6 +21,7 @@
 #include "clients/irrr_config.h"
 #include "clients/loop_csv.h"
 #include "core/graph_io.h"
+#include "tests/test_files.h"
 
 namespace irrr {
 namespace {
@@ -30,27 +31,6 @@ using Catch::Matchers::StartsWith;
 using nlohmann::json;
 
 const double kNaN = std::numeric_limits<double>::quiet_NaN();
-
-// A folder of its own for each test's files, beside the test binary.
-std::string TestDirectory(const std::string& name) {
-  const std::filesystem::path dir = std::filesystem::path(IRRR_TEST_OUTPUT_DIR) / name;
-  std::filesystem::remove_all(dir);
-  std::filesystem::create_directories(dir);
-  return dir.string();
-}
-
-std::string ReadText(const std::string& path) {
-  std::ifstream in(path);
-  std::ostringstream text;
-  text << in.rdbuf();
-  return text.str();
-}
-
-void WriteText(const std::string& path, const std::string& text) {
-  std::ofstream out(path);
-  out << text;
-  REQUIRE(out.good());
-}
 
 // All keys of a JSON object tree, as paths "a.b".
 std::set<std::string> KeyPaths(const json& object, const std::string& prefix = "") {
@@ -406,31 +386,6 @@ TEST_CASE("Labels survive a write and read unchanged", "[csv]") {
   std::istringstream short_row(std::string(kLabelsCsvHeader) + "\n1,2,3,0\n");
   CHECK(ReadLabelsCsv(short_row, &read).message() == "line 2: 4 fields, expected 5");
   CHECK(read.size() == rows.size());
-}
-
-// Runs a tool; returns its exit code. Output goes to `log`, which INFO shows on failure.
-int RunTool(const std::string& command, const std::string& log) {
-  const int status = std::system((command + " > '" + log + "' 2>&1").c_str());
-  REQUIRE(WIFEXITED(status));
-  return WEXITSTATUS(status);
-}
-
-std::string Quoted(const std::string& path) { return "'" + path + "'"; }
-
-// The first `num_poses` poses of the shipped Intel file and the edges among them.
-void WriteIntelPrefix(int num_poses, const std::string& path) {
-  std::ifstream in(IRRR_SOURCE_DIR "/data/intel.g2o");
-  GraphFile<Pose2> intel;
-  REQUIRE(ReadGraphFile(in, FileFormat::kG2o, ReadOptions(), &intel).ok());
-  GraphFile<Pose2> prefix;
-  for (const FileVertex<Pose2>& v : intel.vertices) {
-    if (v.id < num_poses) prefix.vertices.push_back(v);
-  }
-  for (const FileEdge<Pose2>& e : intel.edges) {
-    if (e.from < num_poses && e.to < num_poses) prefix.edges.push_back(e);
-  }
-  std::ofstream out(path);
-  REQUIRE(WriteGraphFile(out, FileFormat::kG2o, prefix).ok());
 }
 
 template <class Row>

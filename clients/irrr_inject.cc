@@ -1,0 +1,356 @@
+// irrr-inject: replays pose-graph files as the LCM messages of robots' front ends, for irrrd.
+//
+//   irrr-inject FILE [FILE ...] [--lcm-url URL] [--rate MSGS_PER_S] [--window N] [--lcmlog OUT]
+//               [--sender NAME] [--first-robot R] [--no-flush] [--wait] [--config FILE]
+//
+// Each file is one robot (robot ids from --first-robot), its sessions inferred as irrr-batch
+// does; the files' messages are merged by vertex ordinal. Messages go out in arrival order
+// (replay_messages.h), then a FLUSH so that every cluster is judged. --rate paces them; --rate 0
+// sends as fast as the daemon absorbs them: at most --window messages ahead of what its status
+// reports received and applied. --lcmlog writes an LCM log instead (for lcm-logplayer), stamped
+// at --rate. --wait waits, after the last message, until the daemon has applied everything.
+// Exit codes follow sysexits.h: 64 usage, 65 bad input data, 66 input missing, 69 LCM
+// unavailable or daemon silent, 73 log not written, 78 bad configuration.
+
+#include <sysexits.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <fstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <fmt/core.h>
+#include <CLI/CLI.hpp>
+#include <lcm/lcm-cpp.hpp>
+
+#include "clients/graph_files.h"
+#include "clients/irrr_config.h"
+#include "clients/replay_messages.h"
+#include "daemon/wire.h"
+#include "irrr/status_t.hpp"
+
+namespace irrr {
+namespace {
+
+struct Arguments {
+  std::vector<std::string> inputs;
+  std::string lcm_url;
+  double rate = 2000.0;
+  int window = 200;
+  std::string lcmlog;
+  std::string sender = "irrr-inject";
+  int first_robot = 0;
+  bool no_flush = false;
+  bool wait = false;
+  double timeout_s = 600.0;
+  std::string config;
+};
+
+// The latest status_t of the daemon, as far as this sender is concerned.
+class StatusWatcher {
+ public:
+  explicit StatusWatcher(std::string sender) : sender_(std::move(sender)) {}
+  void OnStatus(const lcm::ReceiveBuffer* buffer, const std::string&) {
+    status_t status;
+    if (status.decode(buffer->data, 0, static_cast<int>(buffer->data_size)) < 0) return;
+    heard = true;
+    queue_depth = status.queue_depth;
+    solution_id = status.solution_id;
+    accepted = status.n_accepted;
+    rejected = status.n_rejected;
+    steps = status.n_steps;
+    components = status.n_components;
+    for (const sender_count_t& s : status.senders) {
+      if (s.sender == sender_) {
+        received = s.received;
+        errors = s.rejected;
+        last_seq_keyframe = s.last_seq_keyframe;
+        last_seq_loop = s.last_seq_loop;
+        last_seq_session = s.last_seq_session;
+      }
+    }
+  }
+  bool heard = false;
+  int64_t received = 0;
+  int64_t errors = 0;
+  int64_t last_seq_keyframe = -1;
+  int64_t last_seq_loop = -1;
+  int64_t last_seq_session = -1;
+  int queue_depth = 0;
+  int64_t solution_id = 0;
+  int64_t accepted = 0;
+  int64_t rejected = 0;
+  int64_t steps = 0;
+  int components = 0;
+
+ private:
+  std::string sender_;
+};
+
+class ProgressBar {
+ public:
+  explicit ProgressBar(size_t total) : total_(total), tty_(isatty(STDERR_FILENO) != 0) {}
+  void Show(size_t done, double seconds, bool last = false) {
+    if (!tty_ && !last) return;
+    const auto now = std::chrono::steady_clock::now();
+    if (!last && now - shown_ < std::chrono::milliseconds(100)) return;
+    shown_ = now;
+    constexpr int kWidth = 30;
+    const int filled = total_ == 0 ? kWidth : static_cast<int>(kWidth * done / total_);
+    fmt::print(stderr,
+               "{}[{}{}] {}/{} messages, {:.1f} s, {:.0f} msg/s{}",
+               tty_ ? "\r" : "",
+               std::string(filled, '#'),
+               std::string(kWidth - filled, '.'),
+               done,
+               total_,
+               seconds,
+               seconds > 0 ? done / seconds : 0.0,
+               last ? "\n" : "");
+  }
+
+ private:
+  size_t total_;
+  bool tty_;
+  std::chrono::steady_clock::time_point shown_{};
+};
+
+template <class Pose>
+int LoadMessages(const std::string& path,
+                 FileFormat format,
+                 int32_t robot_id,
+                 std::vector<ReplayMessage>* messages) {
+  GraphFile<Pose> file;
+  PoseGraph<Pose> graph;
+  std::vector<int> graph_edge_of_file_edge;
+  if (Status s =
+          LoadPoseGraph(path, format, ReadOptions(), &file, &graph, &graph_edge_of_file_edge);
+      !s.ok()) {
+    fmt::print(stderr, "irrr-inject: {}\n", s.message());
+    return EX_DATAERR;
+  }
+  *messages = ReplayMessages(graph, graph_edge_of_file_edge, robot_id);
+  int loops = 0;
+  for (const ReplayMessage& m : *messages) loops += m.kind == ReplayMessage::Kind::kLoop ? 1 : 0;
+  fmt::print("input     {}: robot {}, {} {} poses in {} session(s), {} loop hypotheses\n",
+             path,
+             robot_id,
+             Pose::kName,
+             graph.num_vertices(),
+             graph.num_sessions(),
+             loops);
+  return EX_OK;
+}
+
+int WriteLog(const Arguments& args,
+             const std::vector<ReplayMessage>& messages,
+             MessageSequencer* sequencer) {
+  lcm::LogFile log(args.lcmlog, "w");
+  if (!log.good()) {
+    fmt::print(stderr, "irrr-inject: {}: cannot create\n", args.lcmlog);
+    return EX_CANTCREAT;
+  }
+  const double rate = args.rate > 0 ? args.rate : 2000.0;
+  const int64_t start = NowUtime();
+  for (size_t k = 0; k < messages.size(); ++k) {
+    const int64_t utime = start + static_cast<int64_t>(1e6 * k / rate);
+    auto [channel, bytes] = sequencer->Encode(messages[k], utime);
+    lcm::LogEvent event{};
+    event.timestamp = utime;
+    event.channel = channel;
+    event.datalen = static_cast<int32_t>(bytes.size());
+    event.data = bytes.data();
+    if (log.writeEvent(&event) != 0) {
+      fmt::print(stderr, "irrr-inject: {}: write failed\n", args.lcmlog);
+      return EX_CANTCREAT;
+    }
+  }
+  fmt::print("lcmlog    {}: {} messages over {:.1f} s (replay: lcm-logplayer {})\n",
+             args.lcmlog,
+             messages.size(),
+             messages.size() / rate,
+             args.lcmlog);
+  return EX_OK;
+}
+
+int Publish(const Arguments& args,
+            const DaemonChannels& channels,
+            const std::vector<ReplayMessage>& messages,
+            MessageSequencer* sequencer) {
+  lcm::LCM lcm(args.lcm_url);
+  if (!lcm.good()) {
+    fmt::print(stderr,
+               "irrr-inject: cannot open LCM at \"{}\" (for udpm://, is there a multicast "
+               "route?)\n",
+               args.lcm_url);
+    return EX_UNAVAILABLE;
+  }
+  StatusWatcher watcher(args.sender);
+  lcm.subscribe(channels.status, &StatusWatcher::OnStatus, &watcher);
+  using Clock = std::chrono::steady_clock;
+  const auto start = Clock::now();
+  const auto deadline = start + std::chrono::duration<double>(args.timeout_s);
+  auto seconds = [&] { return std::chrono::duration<double>(Clock::now() - start).count(); };
+  auto send = [&](const std::pair<std::string, std::vector<uint8_t>>& encoded) {
+    lcm.publish(encoded.first, encoded.second.data(), static_cast<unsigned>(encoded.second.size()));
+  };
+  // Asks for a status and handles messages until `done` holds or the deadline passes.
+  auto wait_for = [&](auto done) {
+    auto asked = Clock::now() - std::chrono::seconds(1);
+    while (!done()) {
+      if (Clock::now() > deadline) return false;
+      if (Clock::now() - asked > std::chrono::milliseconds(100)) {
+        send(sequencer->Progress(args.first_robot, 0, NowUtime()));
+        asked = Clock::now();
+      }
+      lcm.handleTimeout(20);
+    }
+    return true;
+  };
+
+  ProgressBar bar(messages.size());
+  // --rate 0 still spaces messages by 1 / kMaxRate: bursts faster than that overflow a busy
+  // receiver's socket buffer on loopback before any status could slow them down.
+  constexpr double kMaxRate = 10000.0;
+  const auto spacing = std::chrono::duration_cast<Clock::duration>(
+      std::chrono::duration<double>(1.0 / (args.rate > 0 ? args.rate : kMaxRate)));
+  auto next_send = start;
+  int64_t sent = 0;
+  for (size_t k = 0; k < messages.size(); ++k) {
+    if (args.rate == 0 &&
+        (sent - watcher.received >= args.window || watcher.queue_depth >= args.window)) {
+      // The progress requests are messages too: they count in `received`.
+      if (!wait_for([&] {
+            return sent - watcher.received < args.window / 2 &&
+                   watcher.queue_depth < args.window / 2;
+          })) {
+        fmt::print(stderr, "\nirrr-inject: no status from the daemon for {} s\n", args.timeout_s);
+        return EX_UNAVAILABLE;
+      }
+      sent = watcher.received;  // what the daemon has is the baseline now
+    }
+    next_send = std::max(next_send + spacing, args.rate > 0 ? next_send : Clock::now());
+    std::this_thread::sleep_until(next_send);
+    send(sequencer->Encode(messages[k], NowUtime()));
+    ++sent;
+    while (lcm.handleTimeout(0) > 0) {
+    }
+    bar.Show(k + 1, seconds());
+  }
+  bar.Show(messages.size(), seconds(), true);
+  if (!args.wait) return EX_OK;
+  // Every message sent received (by channel sequence numbers) and applied. The status is
+  // published by the thread that receives, so its counts and queue depth agree.
+  const int64_t last_keyframe = sequencer->last_keyframe_seq();
+  const int64_t last_loop = sequencer->last_loop_seq();
+  const int64_t last_session = sequencer->last_session_seq();
+  const bool done = wait_for([&] {
+    return watcher.heard && watcher.last_seq_keyframe >= last_keyframe &&
+           watcher.last_seq_loop >= last_loop && watcher.last_seq_session >= last_session &&
+           watcher.queue_depth == 0;
+  });
+  if (!done) {
+    fmt::print(stderr, "irrr-inject: the daemon did not finish within {} s\n", args.timeout_s);
+    return EX_UNAVAILABLE;
+  }
+  fmt::print(
+      "daemon    received {} messages from {} ({} rejected), {} steps, {} loops accepted, "
+      "{} rejected, {} component(s), latest solution {}\n",
+      watcher.received,
+      args.sender,
+      watcher.errors,
+      watcher.steps,
+      watcher.accepted,
+      watcher.rejected,
+      watcher.components,
+      watcher.solution_id);
+  return EX_OK;
+}
+
+int Run(const Arguments& args) {
+  DaemonChannels channels;
+  if (!args.config.empty()) {
+    nlohmann::json json;
+    DaemonOptions daemon;
+    IrrrOptions options;
+    if (Status s = LoadConfigFile(args.config, &json); !s.ok()) {
+      fmt::print(stderr, "irrr-inject: {}\n", s.message());
+      return EX_CONFIG;
+    }
+    if (Status s = ParseDaemonConfig(json, &daemon, &options); !s.ok()) {
+      fmt::print(stderr, "irrr-inject: {}: {}\n", args.config, s.message());
+      return EX_CONFIG;
+    }
+    channels = daemon.channels;
+  }
+  std::vector<std::vector<ReplayMessage>> robots;
+  for (size_t k = 0; k < args.inputs.size(); ++k) {
+    const std::string& path = args.inputs[k];
+    if (!std::ifstream(path)) {
+      fmt::print(stderr, "irrr-inject: {}: cannot open\n", path);
+      return EX_NOINPUT;
+    }
+    FileFormat format;
+    int dimension = 0;
+    if (Status s = InspectGraphFile(path, &format, &dimension); !s.ok()) {
+      fmt::print(stderr, "irrr-inject: {}\n", s.message());
+      return EX_DATAERR;
+    }
+    std::vector<ReplayMessage> messages;
+    const int32_t robot = args.first_robot + static_cast<int32_t>(k);
+    const int code = dimension == 2 ? LoadMessages<Pose2>(path, format, robot, &messages)
+                                    : LoadMessages<Pose3>(path, format, robot, &messages);
+    if (code != EX_OK) return code;
+    robots.push_back(std::move(messages));
+  }
+  std::vector<ReplayMessage> messages = MergeByStamp(robots);
+  if (!args.no_flush) messages.push_back(FlushMessage());
+  MessageSequencer sequencer(args.sender, channels);
+  return args.lcmlog.empty() ? Publish(args, channels, messages, &sequencer)
+                             : WriteLog(args, messages, &sequencer);
+}
+
+}  // namespace
+}  // namespace irrr
+
+int main(int argc, char** argv) {
+  irrr::Arguments args;
+  CLI::App app{"irrr-inject: replay pose-graph files as LCM messages for irrrd"};
+  app.add_option("inputs", args.inputs, "g2o or TORO files, one robot each")->required();
+  app.add_option("--lcm-url", args.lcm_url, "LCM URL (default: LCM_DEFAULT_URL or LCM's)");
+  app.add_option("--rate", args.rate, "messages per second; 0: as fast as the daemon absorbs them")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  app.add_option("--window", args.window, "--rate 0: messages sent ahead of the daemon")
+      ->check(CLI::Range(10, 1000000))
+      ->capture_default_str();
+  app.add_option("--lcmlog", args.lcmlog, "write an LCM log here instead of publishing");
+  app.add_option("--sender", args.sender, "header.sender of the messages")->capture_default_str();
+  app.add_option("--first-robot", args.first_robot, "robot id of the first file")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  app.add_flag("--no-flush", args.no_flush, "do not send a FLUSH after the last message");
+  app.add_flag(
+      "--wait", args.wait, "wait until the daemon has applied everything, print its counts");
+  app.add_option("--timeout", args.timeout_s, "seconds to wait for the daemon")
+      ->capture_default_str();
+  app.add_option("--config", args.config, "the daemon's JSON configuration (for channel names)");
+  app.footer(
+      "Exit codes: 0 ok, 64 usage, 65 bad input data, 66 input missing, 69 LCM unavailable "
+      "or daemon silent, 73 log not written, 78 bad configuration.");
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    const int code = app.exit(e);
+    return code == 0 ? EX_OK : EX_USAGE;
+  }
+  if (args.sender.empty() || args.sender.size() > 64) {
+    fmt::print(stderr, "irrr-inject: --sender: must have 1 to 64 characters\n");
+    return EX_USAGE;
+  }
+  return irrr::Run(args);
+}

@@ -1,0 +1,478 @@
+// irrr-listen: hears what irrrd publishes and keeps the latest map and every verdict.
+//
+//   irrr-listen [--lcm-url URL] [--output MAP.g2o] [--decisions OUT.csv] [--idle-exit S]
+//               [--config FILE]
+//
+// It assembles each solution (a correction_t with all its verdict and pose chunks) and keeps,
+// per session, the newest estimate; keys that no solution has covered yet continue the latest
+// estimate along the odometry heard on the keyframe channel (as the daemon's own estimate
+// does). It also hears the keyframe and loop channels, for the map's edges. A live one-line
+// summary goes to the terminal. On SIGINT/SIGTERM, or after --idle-exit seconds without a
+// message, it writes:
+//  - --output: the map as g2o (odometry and accepted loops as edges); vertex id = key, or
+//    robot_id * 1000000000 + key when keys repeat across robots;
+//  - --decisions: one row per hypothesis in irrr-batch's CSV format, ordered by (sender,
+//    hypothesis_id): edge_index = hypothesis_id, from/to = keys, session_from/to = session ids.
+// Exit codes follow sysexits.h: 64 usage, 69 LCM unavailable, 73 output not written,
+// 78 bad configuration.
+
+#include <poll.h>
+#include <signal.h>
+#include <sys/signalfd.h>
+#include <sysexits.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <map>
+#include <set>
+#include <string>
+#include <vector>
+
+#include <fmt/core.h>
+#include <CLI/CLI.hpp>
+#include <lcm/lcm-cpp.hpp>
+
+#include "clients/graph_files.h"
+#include "clients/irrr_config.h"
+#include "clients/loop_csv.h"
+#include "daemon/wire.h"
+#include "irrr/correction_t.hpp"
+#include "irrr/keyframe_t.hpp"
+#include "irrr/loop_hypothesis_t.hpp"
+#include "irrr/solution_t.hpp"
+#include "irrr/status_t.hpp"
+#include "irrr/verdicts_t.hpp"
+
+namespace irrr {
+namespace {
+
+constexpr int64_t kRobotIdStride = 1000000000;
+
+using SessionName = std::pair<int32_t, int32_t>;
+using HypothesisName = std::pair<std::string, int64_t>;
+
+struct SessionState {
+  int8_t dim = 0;
+  std::map<int64_t, keyframe_t> keyframes;  // heard on the keyframe channel
+  std::map<int64_t, pose_t> estimate;       // from solutions
+  std::map<int64_t, int64_t> estimate_solution;
+  int component = -1;
+};
+
+struct HypothesisState {
+  bool heard = false;
+  loop_hypothesis_t hypothesis;
+  bool judged = false;
+  verdict_t verdict;
+  int64_t verdict_solution = 0;
+};
+
+class Listener {
+ public:
+  // Handlers (all on the thread that calls lcm.handle()).
+  void OnKeyframe(const lcm::ReceiveBuffer* b, const std::string&) {
+    keyframe_t m;
+    if (!Decode(b, &m)) return;
+    SessionState& s = sessions_[{m.robot_id, m.session_id}];
+    s.dim = m.dim;
+    s.keyframes[m.key] = m;
+  }
+  void OnLoop(const lcm::ReceiveBuffer* b, const std::string&) {
+    loop_hypothesis_t m;
+    if (!Decode(b, &m)) return;
+    HypothesisState& h = hypotheses_[{m.header.sender, m.hypothesis_id}];
+    h.heard = true;
+    h.hypothesis = m;
+  }
+  void OnCorrection(const lcm::ReceiveBuffer* b, const std::string&) {
+    correction_t m;
+    if (!Decode(b, &m)) return;
+    if (m.daemon_start_utime != daemon_start_utime_) {
+      if (daemon_start_utime_ != 0) fmt::print("\nirrr-listen: the daemon restarted\n");
+      daemon_start_utime_ = m.daemon_start_utime;
+    }
+    Pending& p = pending_[m.solution_id];
+    p.have_correction = true;
+    p.correction = m;
+    Complete(m.solution_id);
+  }
+  void OnVerdicts(const lcm::ReceiveBuffer* b, const std::string&) {
+    verdicts_t m;
+    if (!Decode(b, &m)) return;
+    pending_[m.solution_id].verdicts[m.chunk_index] = m;
+    Complete(m.solution_id);
+  }
+  void OnSolution(const lcm::ReceiveBuffer* b, const std::string&) {
+    solution_t m;
+    if (!Decode(b, &m)) return;
+    pending_[m.solution_id].poses[m.chunk_index] = m;
+    Complete(m.solution_id);
+  }
+  void OnStatus(const lcm::ReceiveBuffer* b, const std::string&) {
+    status_t m;
+    if (!Decode(b, &m)) return;
+    status_ = m;
+    have_status_ = true;
+  }
+
+  std::string Summary() const {
+    std::map<LoopState, int> count;
+    for (const auto& [name, h] : hypotheses_) {
+      LoopState state = LoopState::kPending;
+      if (h.judged) LoopStateFromWire(h.verdict.state, &state);
+      ++count[state];
+    }
+    std::set<int> components;
+    for (const auto& [name, s] : sessions_) {
+      if (s.component >= 0) components.insert(s.component);
+    }
+    const int rejected = count[LoopState::kRejectedLinkTest] +
+                         count[LoopState::kRejectedClusterTest] +
+                         count[LoopState::kRejectedJointTest];
+    return fmt::format(
+        "solution {} (step {}) | {} session(s) in {} component(s) | {} hypotheses: {} accepted, "
+        "{} rejected, {} reversed, {} pending | step latency {:.1f} ms{}",
+        latest_solution_,
+        latest_step_,
+        sessions_.size(),
+        components.size(),
+        hypotheses_.size(),
+        count[LoopState::kAccepted],
+        rejected,
+        count[LoopState::kReversed],
+        count[LoopState::kPending],
+        latest_latency_ms_,
+        incomplete_ > 0 ? fmt::format(" | {} incomplete solution(s)", incomplete_) : "");
+  }
+
+  bool HasDimension(int8_t dim) const {
+    for (const auto& [name, s] : sessions_) {
+      if (s.dim == dim) return true;
+    }
+    return false;
+  }
+
+  std::vector<DecisionRow> DecisionRows() const {
+    std::vector<DecisionRow> rows;
+    for (const auto& [name, h] : hypotheses_) {
+      DecisionRow row;
+      row.edge_index = static_cast<int>(name.second);
+      if (h.judged) {
+        const verdict_t& v = h.verdict;
+        row.from = v.key_from;
+        row.to = v.key_to;
+        row.session_from = v.session_from;
+        row.session_to = v.session_to;
+        LoopStateFromWire(v.state, &row.decision.state);
+        row.decision.cluster = v.cluster;
+        row.decision.step = v.step;
+        row.decision.chi2 = v.chi2;
+        row.decision.threshold = v.threshold;
+      } else {
+        row.from = h.hypothesis.key_from;
+        row.to = h.hypothesis.key_to;
+        row.session_from = h.hypothesis.session_from;
+        row.session_to = h.hypothesis.session_to;
+      }
+      rows.push_back(row);
+    }
+    return rows;
+  }
+
+  // The map as a graph file: every keyframe heard (or estimated), odometry and accepted loops.
+  template <class Pose>
+  GraphFile<Pose> Map() const {
+    std::set<int64_t> keys;
+    bool repeated = false;
+    for (const auto& [name, s] : sessions_) {
+      for (const auto& [key, unused] : s.estimate) repeated |= !keys.insert(key).second;
+      for (const auto& [key, unused] : s.keyframes) {
+        if (s.estimate.count(key) == 0) repeated |= !keys.insert(key).second;
+      }
+    }
+    auto id_of = [&](int32_t robot, int64_t key) {
+      return repeated ? int64_t{robot} * kRobotIdStride + key : key;
+    };
+    GraphFile<Pose> file;
+    for (const auto& [name, s] : sessions_) {
+      if (s.dim != WireDim<Pose>()) continue;
+      std::set<int64_t> session_keys;
+      for (const auto& [key, unused] : s.estimate) session_keys.insert(key);
+      for (const auto& [key, unused] : s.keyframes) session_keys.insert(key);
+      // Keys beyond the solutions continue the estimate along odometry, as the daemon's do;
+      // a session no solution covered starts at the identity (its own frame).
+      Pose previous;
+      bool have_previous = false;
+      for (int64_t key : session_keys) {
+        Pose pose;
+        const auto estimated = s.estimate.find(key);
+        const auto heard = s.keyframes.find(key);
+        if (estimated != s.estimate.end()) {
+          PoseFromWire(estimated->second, "pose", &pose);
+        } else if (have_previous && heard != s.keyframes.end() && heard->second.has_odom_edge) {
+          Pose delta;
+          PoseFromWire(heard->second.odom_delta, "odom_delta", &delta);
+          pose = previous * delta;
+        }
+        previous = pose;
+        have_previous = true;
+        file.vertices.push_back({id_of(name.first, key), pose, 0});
+        if (heard != s.keyframes.end() && heard->second.has_odom_edge &&
+            session_keys.count(key - 1) != 0) {
+          FileEdge<Pose> edge;
+          edge.from = id_of(name.first, key - 1);
+          edge.to = id_of(name.first, key);
+          PoseFromWire(heard->second.odom_delta, "odom_delta", &edge.measurement);
+          InformationFromWire<Pose>(heard->second.information, "information", &edge.information);
+          file.edges.push_back(edge);
+        }
+      }
+    }
+    for (const auto& [name, h] : hypotheses_) {
+      if (!h.heard || !h.judged || h.verdict.state != verdict_t::ACCEPTED ||
+          h.hypothesis.dim != WireDim<Pose>()) {
+        continue;
+      }
+      FileEdge<Pose> edge;
+      edge.from = id_of(h.hypothesis.robot_from, h.hypothesis.key_from);
+      edge.to = id_of(h.hypothesis.robot_to, h.hypothesis.key_to);
+      PoseFromWire(h.hypothesis.measurement, "measurement", &edge.measurement);
+      InformationFromWire<Pose>(h.hypothesis.information, "information", &edge.information);
+      file.edges.push_back(edge);
+    }
+    return file;
+  }
+
+  int64_t latest_solution() const { return latest_solution_; }
+  const std::vector<double>& latencies_ms() const { return latencies_ms_; }
+  bool have_status() const { return have_status_; }
+
+ private:
+  struct Pending {
+    bool have_correction = false;
+    correction_t correction;
+    std::map<int, verdicts_t> verdicts;
+    std::map<int, solution_t> poses;
+  };
+
+  template <class Message>
+  static bool Decode(const lcm::ReceiveBuffer* b, Message* m) {
+    return m->decode(b->data, 0, static_cast<int>(b->data_size)) >= 0;
+  }
+
+  void Complete(int64_t id) {
+    auto it = pending_.find(id);
+    Pending& p = it->second;
+    if (!p.have_correction || static_cast<int>(p.verdicts.size()) < p.correction.n_verdict_chunks ||
+        static_cast<int>(p.poses.size()) < p.correction.n_pose_chunks) {
+      return;
+    }
+    const correction_t& c = p.correction;
+    for (const session_transform_t& t : c.sessions) {
+      sessions_[{t.robot_id, t.session_id}].component = t.component;
+    }
+    for (const auto& [index, chunk] : p.poses) {
+      SessionState& s = sessions_[{chunk.robot_id, chunk.session_id}];
+      for (int k = 0; k < chunk.n_poses; ++k) {
+        const int64_t key = chunk.first_key + k;
+        int64_t& from = s.estimate_solution[key];
+        if (from > id) continue;  // a newer solution already placed this key
+        from = id;
+        s.estimate[key] = chunk.poses[k];
+      }
+    }
+    for (const auto& [index, chunk] : p.verdicts) {
+      for (const verdict_t& v : chunk.verdicts) {
+        HypothesisState& h = hypotheses_[{v.sender, v.hypothesis_id}];
+        if (h.verdict_solution > id) continue;
+        h.verdict_solution = id;
+        h.verdict = v;
+        h.judged = true;
+      }
+    }
+    if (id > latest_solution_) {
+      latest_solution_ = id;
+      latest_step_ = c.step;
+      latest_latency_ms_ = 1e-3 * static_cast<double>(c.published_utime - c.closed_utime);
+    }
+    latencies_ms_.push_back(1e-3 * static_cast<double>(c.published_utime - c.closed_utime));
+    pending_.erase(it);
+    // Solutions far behind the newest complete one will not complete any more.
+    constexpr int64_t kKeepIncomplete = 100;
+    while (!pending_.empty() && pending_.begin()->first < latest_solution_ - kKeepIncomplete) {
+      pending_.erase(pending_.begin());
+      ++incomplete_;
+    }
+  }
+
+  std::map<SessionName, SessionState> sessions_;
+  std::map<HypothesisName, HypothesisState> hypotheses_;
+  std::map<int64_t, Pending> pending_;
+  int64_t daemon_start_utime_ = 0;
+  int64_t latest_solution_ = 0;
+  int latest_step_ = -1;
+  double latest_latency_ms_ = 0.0;
+  int incomplete_ = 0;
+  std::vector<double> latencies_ms_;
+  status_t status_{};
+  bool have_status_ = false;
+};
+
+struct Arguments {
+  std::string lcm_url;
+  std::string output;
+  std::string decisions;
+  double idle_exit_s = 0.0;
+  std::string config;
+};
+
+template <class Pose>
+Status WriteMap(const Listener& listener, const std::string& path) {
+  const GraphFile<Pose> map = listener.Map<Pose>();
+  return WriteFileAtomically(
+      path, [&](std::ostream& out) { return WriteGraphFile(out, FormatForPath(path), map); });
+}
+
+int WriteOutputs(const Arguments& args, const Listener& listener) {
+  int code = EX_OK;
+  if (!args.decisions.empty()) {
+    const std::vector<DecisionRow> rows = listener.DecisionRows();
+    if (Status s = WriteFileAtomically(
+            args.decisions, [&](std::ostream& out) { return WriteDecisionsCsv(out, rows); });
+        !s.ok()) {
+      fmt::print(stderr, "irrr-listen: {}\n", s.message());
+      code = EX_CANTCREAT;
+    } else {
+      fmt::print("decisions {} ({} hypotheses)\n", args.decisions, rows.size());
+    }
+  }
+  if (!args.output.empty()) {
+    const bool se2 = listener.HasDimension(keyframe_t::DIM_SE2);
+    const bool se3 = listener.HasDimension(keyframe_t::DIM_SE3);
+    Status s = Status::Ok();
+    if (se2 && se3) {
+      s = Status::Error(args.output + ": SE(2) and SE(3) sessions cannot share one file");
+    } else {
+      s = se3 ? WriteMap<Pose3>(listener, args.output) : WriteMap<Pose2>(listener, args.output);
+    }
+    if (!s.ok()) {
+      fmt::print(stderr, "irrr-listen: {}\n", s.message());
+      code = EX_CANTCREAT;
+    } else {
+      fmt::print("output    {}\n", args.output);
+    }
+  }
+  return code;
+}
+
+int Run(const Arguments& args) {
+  DaemonChannels channels;
+  if (!args.config.empty()) {
+    nlohmann::json json;
+    DaemonOptions daemon;
+    IrrrOptions options;
+    Status s = LoadConfigFile(args.config, &json);
+    if (s.ok()) s = ParseDaemonConfig(json, &daemon, &options);
+    if (!s.ok()) {
+      fmt::print(stderr, "irrr-listen: {}: {}\n", args.config, s.message());
+      return EX_CONFIG;
+    }
+    channels = daemon.channels;
+  }
+  sigset_t signals;
+  sigemptyset(&signals);
+  sigaddset(&signals, SIGTERM);
+  sigaddset(&signals, SIGINT);
+  sigprocmask(SIG_BLOCK, &signals, nullptr);
+  const int signal_fd = signalfd(-1, &signals, SFD_CLOEXEC);
+
+  lcm::LCM lcm(args.lcm_url);
+  if (!lcm.good()) {
+    fmt::print(stderr, "irrr-listen: cannot open LCM at \"{}\"\n", args.lcm_url);
+    return EX_UNAVAILABLE;
+  }
+  Listener listener;
+  lcm.subscribe(channels.keyframe, &Listener::OnKeyframe, &listener);
+  lcm.subscribe(channels.loop, &Listener::OnLoop, &listener);
+  lcm.subscribe(channels.correction, &Listener::OnCorrection, &listener);
+  lcm.subscribe(channels.verdicts, &Listener::OnVerdicts, &listener);
+  lcm.subscribe(channels.solution, &Listener::OnSolution, &listener);
+  lcm.subscribe(channels.status, &Listener::OnStatus, &listener);
+
+  const bool tty = isatty(STDOUT_FILENO) != 0;
+  using Clock = std::chrono::steady_clock;
+  auto last_message = Clock::now();
+  bool heard = false;
+  int64_t shown_solution = -1;
+  auto shown = Clock::now();
+  for (;;) {
+    pollfd fds[2] = {{lcm.getFileno(), POLLIN, 0}, {signal_fd, POLLIN, 0}};
+    poll(fds, 2, 100);
+    if (fds[1].revents & POLLIN) break;
+    if (fds[0].revents & POLLIN) {
+      lcm.handle();
+      last_message = Clock::now();
+      heard = true;
+    }
+    const auto now = Clock::now();
+    if (listener.latest_solution() != shown_solution &&
+        now - shown > std::chrono::milliseconds(tty ? 100 : 5000)) {
+      fmt::print("{}{}{}", tty ? "\r" : "", listener.Summary(), tty ? "\033[K" : "\n");
+      std::fflush(stdout);
+      shown_solution = listener.latest_solution();
+      shown = now;
+    }
+    if (args.idle_exit_s > 0 && heard &&
+        now - last_message > std::chrono::duration<double>(args.idle_exit_s)) {
+      break;
+    }
+  }
+  while (lcm.handleTimeout(0) > 0) {
+  }
+  fmt::print("{}{}\n", tty ? "\r" : "", listener.Summary());
+  std::vector<double> latencies = listener.latencies_ms();
+  if (!latencies.empty()) {
+    std::sort(latencies.begin(), latencies.end());
+    auto at = [&](double q) {
+      return latencies[std::min(latencies.size() - 1,
+                                static_cast<size_t>(std::ceil(q * latencies.size())) - 1)];
+    };
+    fmt::print(
+        "latency   step (cluster closed -> correction published) over {} steps: p50 {:.1f} "
+        "ms, p99 {:.1f} ms, max {:.1f} ms\n",
+        latencies.size(),
+        at(0.50),
+        at(0.99),
+        latencies.back());
+  }
+  return WriteOutputs(args, listener);
+}
+
+}  // namespace
+}  // namespace irrr
+
+int main(int argc, char** argv) {
+  irrr::Arguments args;
+  CLI::App app{"irrr-listen: keep irrrd's latest map and verdicts, write them on exit"};
+  app.add_option("--lcm-url", args.lcm_url, "LCM URL (default: LCM_DEFAULT_URL or LCM's)");
+  app.add_option("--output", args.output, "write the map here on exit (g2o; TORO for *.graph)");
+  app.add_option("--decisions", args.decisions, "write the decisions CSV here on exit");
+  app.add_option("--idle-exit",
+                 args.idle_exit_s,
+                 "exit this many seconds after the last message (0: only on SIGINT/SIGTERM)")
+      ->check(CLI::NonNegativeNumber);
+  app.add_option("--config", args.config, "the daemon's JSON configuration (for channel names)");
+  app.footer(
+      "Exit codes: 0 ok, 64 usage, 69 LCM unavailable, 73 output not written, 78 bad "
+      "configuration.");
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    const int code = app.exit(e);
+    return code == 0 ? EX_OK : EX_USAGE;
+  }
+  return irrr::Run(args);
+}

@@ -1,0 +1,161 @@
+#include "clients/replay_messages.h"
+
+#include <cmath>
+#include <utility>
+
+#include "core/irrr.h"
+#include "daemon/wire.h"
+
+namespace irrr {
+
+template <class Pose>
+std::vector<ReplayMessage> ReplayMessages(const PoseGraph<Pose>& graph,
+                                          const std::vector<int>& graph_edge_of_file_edge,
+                                          int32_t robot_id) {
+  std::vector<int> odometry_into(graph.num_vertices(), -1);
+  for (int e = 0; e < graph.num_edges(); ++e) {
+    if (graph.edge(e).kind == EdgeKind::kOdometry) odometry_into[graph.edge(e).to] = e;
+  }
+  std::vector<int> file_edge_of_graph_edge(graph.num_edges(), -1);
+  for (size_t k = 0; k < graph_edge_of_file_edge.size(); ++k) {
+    file_edge_of_graph_edge[graph_edge_of_file_edge[k]] = static_cast<int>(k);
+  }
+  std::vector<ReplayMessage> out;
+  double stamp = 0.0;
+  for (const ArrivalEvent& event : ArrivalOrder(graph)) {
+    ReplayMessage m;
+    switch (event.kind) {
+      case ArrivalEvent::Kind::kPose: {
+        const Vertex& v = graph.vertex(event.index);
+        stamp = v.stamp;
+        m.kind = ReplayMessage::Kind::kKeyframe;
+        keyframe_t& k = m.keyframe;
+        k.robot_id = robot_id;
+        k.session_id = static_cast<int32_t>(graph.session(v.session).id);
+        k.key = v.id;
+        k.stamp_utime = std::llround(v.stamp * 1e6);
+        k.dim = WireDim<Pose>();
+        k.odom_pose = PoseToWire(graph.initial_estimate()[event.index]);
+        const int odometry = odometry_into[event.index];
+        k.has_odom_edge = odometry >= 0;
+        if (odometry >= 0) {
+          k.odom_delta = PoseToWire(graph.edge(odometry).measurement);
+          InformationToWire<Pose>(graph.edge(odometry).information, k.information);
+        } else {
+          k.odom_delta = PoseToWire(Pose());
+        }
+        break;
+      }
+      case ArrivalEvent::Kind::kLoop: {
+        const Edge<Pose>& e = graph.edge(event.index);
+        const Vertex& from = graph.vertex(e.from);
+        const Vertex& to = graph.vertex(e.to);
+        m.kind = ReplayMessage::Kind::kLoop;
+        loop_hypothesis_t& l = m.loop;
+        l.hypothesis_id = file_edge_of_graph_edge[event.index];
+        l.robot_from = robot_id;
+        l.session_from = static_cast<int32_t>(graph.session(from.session).id);
+        l.key_from = from.id;
+        l.robot_to = robot_id;
+        l.session_to = static_cast<int32_t>(graph.session(to.session).id);
+        l.key_to = to.id;
+        l.dim = WireDim<Pose>();
+        l.measurement = PoseToWire(e.measurement);
+        InformationToWire<Pose>(e.information, l.information);
+        l.score = 1.0f;
+        break;
+      }
+      case ArrivalEvent::Kind::kEndSession: {
+        m.kind = ReplayMessage::Kind::kSession;
+        session_event_t& s = m.session;
+        const Session& session = graph.session(event.index);
+        s.event = session_event_t::END;
+        s.robot_id = robot_id;
+        s.session_id = static_cast<int32_t>(session.id);
+        s.last_key = graph.vertex(session.vertices.back()).id;
+        s.last_hypothesis_id = -1;
+        break;
+      }
+    }
+    m.stamp = stamp;
+    out.push_back(std::move(m));
+  }
+  return out;
+}
+
+std::vector<ReplayMessage> MergeByStamp(const std::vector<std::vector<ReplayMessage>>& lists) {
+  std::vector<ReplayMessage> out;
+  std::vector<size_t> next(lists.size(), 0);
+  for (;;) {
+    int best = -1;
+    for (size_t k = 0; k < lists.size(); ++k) {
+      if (next[k] >= lists[k].size()) continue;
+      if (best < 0 || lists[k][next[k]].stamp < lists[best][next[best]].stamp) {
+        best = static_cast<int>(k);
+      }
+    }
+    if (best < 0) return out;
+    out.push_back(lists[best][next[best]++]);
+  }
+}
+
+ReplayMessage FlushMessage() {
+  ReplayMessage m;
+  m.kind = ReplayMessage::Kind::kSession;
+  m.session.event = session_event_t::FLUSH;
+  m.session.last_key = -1;
+  m.session.last_hypothesis_id = -1;
+  return m;
+}
+
+MessageSequencer::MessageSequencer(std::string sender, DaemonChannels channels)
+    : sender_(std::move(sender)), channels_(std::move(channels)) {}
+
+namespace {
+
+template <class Message>
+std::vector<uint8_t> EncodeMessage(const Message& message) {
+  std::vector<uint8_t> bytes(message.getEncodedSize());
+  message.encode(bytes.data(), 0, static_cast<int>(bytes.size()));
+  return bytes;
+}
+
+}  // namespace
+
+std::pair<std::string, std::vector<uint8_t>> MessageSequencer::Encode(ReplayMessage message,
+                                                                      int64_t utime) {
+  switch (message.kind) {
+    case ReplayMessage::Kind::kKeyframe:
+      message.keyframe.header = {utime, next_keyframe_seq_++, sender_};
+      return {channels_.keyframe, EncodeMessage(message.keyframe)};
+    case ReplayMessage::Kind::kLoop:
+      message.loop.header = {utime, next_loop_seq_++, sender_};
+      return {channels_.loop, EncodeMessage(message.loop)};
+    case ReplayMessage::Kind::kSession:
+      break;
+  }
+  message.session.header = {utime, next_session_seq_++, sender_};
+  return {channels_.session, EncodeMessage(message.session)};
+}
+
+std::pair<std::string, std::vector<uint8_t>> MessageSequencer::Progress(int32_t robot_id,
+                                                                        int32_t session_id,
+                                                                        int64_t utime) {
+  ReplayMessage m;
+  m.kind = ReplayMessage::Kind::kSession;
+  m.session.event = session_event_t::PROGRESS;
+  m.session.robot_id = robot_id;
+  m.session.session_id = session_id;
+  m.session.last_key = -1;
+  m.session.last_hypothesis_id = -1;
+  return Encode(m, utime);
+}
+
+template std::vector<ReplayMessage> ReplayMessages<Pose2>(const PoseGraph<Pose2>&,
+                                                          const std::vector<int>&,
+                                                          int32_t);
+template std::vector<ReplayMessage> ReplayMessages<Pose3>(const PoseGraph<Pose3>&,
+                                                          const std::vector<int>&,
+                                                          int32_t);
+
+}  // namespace irrr

@@ -1,0 +1,73 @@
+#ifndef IRRR_CLIENTS_REPLAY_MESSAGES_H_
+#define IRRR_CLIENTS_REPLAY_MESSAGES_H_
+
+// A pose-graph file as the LCM messages a robot's front end would have sent (irrr-inject, tests):
+// keyframes, loop hypotheses and session ends in the arrival order of algorithm-notes ("Files as
+// input", the order RunIncrementalIrrr replays), so that the daemon sees what irrr-batch --method
+// irrr sees. Identities: robot `robot_id`; session = the graph's session id (0, 1, ...); key = the
+// file's vertex id; hypothesis_id = the file's edge index; stamp_utime = the vertex ordinal x 1e6
+// (so a daemon cluster_gap in seconds equals irrr-batch's in poses).
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "clients/irrr_config.h"
+#include "core/graph_io.h"
+#include "core/pose_graph.h"
+#include "irrr/keyframe_t.hpp"
+#include "irrr/loop_hypothesis_t.hpp"
+#include "irrr/session_event_t.hpp"
+
+namespace irrr {
+
+// One message to send, not yet stamped with its header (see MessageSequencer).
+struct ReplayMessage {
+  enum class Kind { kKeyframe, kLoop, kSession };
+  Kind kind = Kind::kKeyframe;
+  double stamp = 0.0;  // the file's vertex ordinal it arrives with (merging several files)
+  keyframe_t keyframe{};
+  loop_hypothesis_t loop{};
+  session_event_t session{};
+};
+
+// The messages of one graph (built from a file by BuildPoseGraph, which gave
+// `graph_edge_of_file_edge`), in arrival order, each session's END included (no FLUSH).
+template <class Pose>
+std::vector<ReplayMessage> ReplayMessages(const PoseGraph<Pose>& graph,
+                                          const std::vector<int>& graph_edge_of_file_edge,
+                                          int32_t robot_id);
+
+// Several robots' message lists merged by stamp (ties: the earlier list first), each list's
+// order kept.
+std::vector<ReplayMessage> MergeByStamp(const std::vector<std::vector<ReplayMessage>>& lists);
+
+// A FLUSH session event.
+ReplayMessage FlushMessage();
+
+// Fills headers (sender, per-channel seq from 0, utime) and encodes, as one sender publishes.
+class MessageSequencer {
+ public:
+  MessageSequencer(std::string sender, DaemonChannels channels);
+  // The channel and the encoded bytes of `message`, stamped with `utime`.
+  std::pair<std::string, std::vector<uint8_t>> Encode(ReplayMessage message, int64_t utime);
+  // A PROGRESS event for (robot, session) (asks the daemon for a status).
+  std::pair<std::string, std::vector<uint8_t>> Progress(int32_t robot_id,
+                                                        int32_t session_id,
+                                                        int64_t utime);
+  // The header.seq of the last message encoded on each channel (-1: none).
+  int64_t last_keyframe_seq() const { return next_keyframe_seq_ - 1; }
+  int64_t last_loop_seq() const { return next_loop_seq_ - 1; }
+  int64_t last_session_seq() const { return next_session_seq_ - 1; }
+
+ private:
+  std::string sender_;
+  DaemonChannels channels_;
+  int64_t next_keyframe_seq_ = 0;
+  int64_t next_loop_seq_ = 0;
+  int64_t next_session_seq_ = 0;
+};
+
+}  // namespace irrr
+
+#endif  // IRRR_CLIENTS_REPLAY_MESSAGES_H_

@@ -1,0 +1,713 @@
+// The daemon: its configuration, the service in-process over memq:// (same decisions and
+// estimate as RunIncrementalIrrr; every kind of bad input answered, nothing valid lost), and,
+// hidden behind [udpm] and run inside a private network namespace by tests/netns_run.sh, the
+// processes end to end over UDP multicast and through an LCM log.
+
+#include <signal.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <functional>
+#include <limits>
+#include <map>
+#include <mutex>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <spdlog/spdlog.h>
+#include <catch2/catch.hpp>
+#include <lcm/lcm-cpp.hpp>
+
+#include "clients/graph_files.h"
+#include "clients/irrr_config.h"
+#include "clients/loop_csv.h"
+#include "clients/replay_messages.h"
+#include "core/irrr.h"
+#include "daemon/service.h"
+#include "daemon/wire.h"
+#include "irrr/correction_t.hpp"
+#include "irrr/error_t.hpp"
+#include "irrr/solution_t.hpp"
+#include "irrr/verdicts_t.hpp"
+#include "tests/test_files.h"
+
+namespace irrr {
+namespace {
+
+using Catch::Matchers::Contains;
+
+// The service logs every rejection; the tests check the error channel instead.
+const bool kQuiet = [] {
+  spdlog::set_level(spdlog::level::off);
+  return true;
+}();
+
+// ---- Configuration ----
+
+TEST_CASE("config/irrrd.json holds every daemon default and parses", "[daemon][config]") {
+  nlohmann::json config;
+  REQUIRE(LoadConfigFile(IRRR_SOURCE_DIR "/config/irrrd.json", &config).ok());
+  DaemonOptions daemon;
+  daemon.daemon_id = "marker";
+  IrrrOptions options;
+  const Status status = ParseDaemonConfig(config, &daemon, &options);
+  INFO(status.message());
+  REQUIRE(status.ok());
+  CHECK(DaemonOptionsToJson(daemon) == DaemonOptionsToJson(DaemonOptions()));
+  CHECK(config["daemon"] == DaemonOptionsToJson(DaemonOptions()));
+  CHECK(IrrrOptionsToJson(options) == IrrrOptionsToJson(IrrrOptions()));
+}
+
+TEST_CASE("Daemon configuration errors name the key", "[daemon][config]") {
+  auto error = [](const std::string& text) {
+    DaemonOptions daemon;
+    IrrrOptions options;
+    const Status s = ParseDaemonConfig(nlohmann::json::parse(text), &daemon, &options);
+    REQUIRE_FALSE(s.ok());
+    CHECK(daemon.daemon_id == DaemonOptions().daemon_id);  // untouched
+    return s.message();
+  };
+  CHECK_THAT(error(R"({"deamon": {}})"), Contains("deamon: unknown key"));
+  CHECK_THAT(error(R"({"daemon": {"status_hz": "fast"}})"),
+             Contains("daemon.status_hz: expected a number"));
+  CHECK_THAT(error(R"({"daemon": {"channels": {"keyframes": "X"}}})"),
+             Contains("daemon.channels.keyframes: unknown key"));
+  CHECK_THAT(error(R"({"daemon": {"limits": {"queue_limit": 0}}})"), Contains("daemon.limits"));
+  CHECK_THAT(error(R"({"daemon": {"log_level": "loud"}})"), Contains("daemon.log_level"));
+  CHECK_THAT(error(R"({"daemon": {"channels": {"loop": "IRRR_KEYFRAME"}}})"),
+             Contains("used by another channel"));
+  CHECK_THAT(error(R"({"irrr": {"alpha": 2}})"), Contains("irrr"));
+  CHECK_THAT(error(R"({"irrr": {"cluster_gap": "ten"}})"), Contains("irrr.cluster_gap"));
+}
+
+// ---- The service in-process ----
+
+// Every message the service publishes, by channel.
+class RecordingSink : public MessageSink {
+ public:
+  void Send(const std::string& channel, const std::vector<uint8_t>& bytes) override {
+    std::lock_guard<std::mutex> lock(mutex_);
+    messages[channel].push_back(bytes);
+  }
+  template <class Message>
+  std::vector<Message> Decoded(const std::string& channel) const {
+    std::vector<Message> out;
+    const auto it = messages.find(channel);
+    if (it == messages.end()) return out;
+    for (const std::vector<uint8_t>& bytes : it->second) {
+      Message m;
+      REQUIRE(m.decode(bytes.data(), 0, static_cast<int>(bytes.size())) ==
+              static_cast<int>(bytes.size()));
+      out.push_back(m);
+    }
+    return out;
+  }
+  std::map<std::string, std::vector<std::vector<uint8_t>>> messages;
+
+ private:
+  std::mutex mutex_;
+};
+
+// Publishes into one memq:// LCM instance (the only kind that sees its own messages).
+class LcmSink : public MessageSink {
+ public:
+  explicit LcmSink(lcm::LCM* lcm) : lcm_(lcm) {}
+  void Send(const std::string& channel, const std::vector<uint8_t>& bytes) override {
+    REQUIRE(lcm_->publish(channel, bytes.data(), static_cast<unsigned>(bytes.size())) == 0);
+  }
+
+ private:
+  lcm::LCM* lcm_;
+};
+
+struct ServiceReceiver {
+  Service* service;
+  std::map<std::string, int> heard;
+  void OnMessage(const lcm::ReceiveBuffer* b, const std::string& channel) {
+    ++heard[channel];
+    service->Receive(channel, static_cast<const uint8_t*>(b->data), static_cast<int>(b->data_size));
+  }
+};
+
+// A two-session Intel prefix with grouped wrong inter-session loops, made by irrr-corrupt.
+std::string MakeTwoSessionIntel(const std::string& dir) {
+  const std::string clean = dir + "/intel400.g2o";
+  WriteIntelPrefix(400, clean);
+  const std::string corrupted = dir + "/intel400_2sessions.g2o";
+  const std::string log = dir + "/corrupt.log";
+  const std::string command = std::string(IRRR_CORRUPT) + " " + Quoted(clean) + " " +
+                              Quoted(corrupted) +
+                              " --split 200 --mode inter-session --count 30 --group-size 3 "
+                              "--seed 3 --labels " +
+                              Quoted(dir + "/labels.csv");
+  const int code = RunTool(command, log);
+  INFO(command << "\n" << ReadText(log));
+  REQUIRE(code == 0);
+  return corrupted;
+}
+
+IrrrOptions TestOptions() {
+  IrrrOptions options;
+  options.cluster_gap = 10.0;
+  return options;
+}
+
+double YawDifference(const Pose2& a, const Pose2& b) {
+  return std::abs(NormalizeAngle(a.yaw_rad() - b.yaw_rad()));
+}
+
+TEST_CASE("Over memq://, the service decides as RunIncrementalIrrr and merges the sessions",
+          "[daemon]") {
+  const std::string dir = TestDirectory("daemon_memq");
+  const std::string path = MakeTwoSessionIntel(dir);
+  GraphFile<Pose2> file;
+  PoseGraph<Pose2> graph;
+  std::vector<int> graph_edge_of_file_edge;
+  REQUIRE(
+      LoadPoseGraph(path, FileFormat::kG2o, ReadOptions(), &file, &graph, &graph_edge_of_file_edge)
+          .ok());
+  REQUIRE(graph.num_sessions() == 2);
+  const IrrrOptions options = TestOptions();
+  std::vector<Pose2> expected_estimate;
+  std::vector<StepResult> steps;
+  const std::vector<LoopDecision> expected =
+      RunIncrementalIrrr(graph, options, &expected_estimate, &steps);
+
+  lcm::LCM lcm("memq://");
+  REQUIRE(lcm.good());
+  LcmSink sink(&lcm);
+  DaemonOptions daemon;
+  Service service(daemon, options, &sink);
+  ServiceReceiver receiver{&service, {}};
+  for (const std::string& channel : {daemon.channels.keyframe,
+                                     daemon.channels.loop,
+                                     daemon.channels.session,
+                                     daemon.channels.correction,
+                                     daemon.channels.error}) {
+    lcm.subscribe(channel, &ServiceReceiver::OnMessage, &receiver);
+  }
+  std::vector<ReplayMessage> messages = ReplayMessages(graph, graph_edge_of_file_edge, 0);
+  messages.push_back(FlushMessage());
+  MessageSequencer sequencer("test", daemon.channels);
+  for (const ReplayMessage& m : messages) {
+    const auto [channel, bytes] = sequencer.Encode(m, NowUtime());
+    REQUIRE(lcm.publish(channel, bytes.data(), static_cast<unsigned>(bytes.size())) == 0);
+    while (lcm.handleTimeout(0) > 0) {
+    }
+    // Apply as the worker would, in arrival order (its corrections land in the memq queue).
+    service.ProcessQueued(std::chrono::milliseconds(0));
+  }
+  while (lcm.handleTimeout(0) > 0) {
+  }
+  CHECK(service.QueueDepth() == 0);
+  CHECK(receiver.heard[daemon.channels.error] == 0);
+  CHECK(receiver.heard[daemon.channels.correction] == static_cast<int>(steps.size()));
+  const status_t status = service.CurrentStatus();
+  CHECK(status.n_errors == 0);
+  CHECK(status.n_keyframes == graph.num_vertices());
+  CHECK(status.n_steps == static_cast<int64_t>(steps.size()));
+  CHECK(status.n_components == 1);  // the two sessions were merged
+
+  // Decisions: hypothesis id = file edge index.
+  const std::vector<HypothesisDecision> decisions = service.Decisions();
+  int loops = 0;
+  for (const Edge<Pose2>& e : graph.edges()) loops += e.kind == EdgeKind::kLoop ? 1 : 0;
+  REQUIRE(static_cast<int>(decisions.size()) == loops);
+  int accepted = 0;
+  for (const HypothesisDecision& d : decisions) {
+    const LoopDecision& want = expected[graph_edge_of_file_edge[d.hypothesis_id]];
+    INFO("hypothesis " << d.hypothesis_id);
+    CHECK(d.decision.state == want.state);
+    CHECK(d.decision.cluster == want.cluster);
+    CHECK(d.decision.step == want.step);
+    if (!std::isnan(want.chi2)) CHECK(d.decision.chi2 == Approx(want.chi2).epsilon(1e-9));
+    accepted += d.decision.state == LoopState::kAccepted ? 1 : 0;
+  }
+  CHECK(accepted > loops / 2);
+
+  // Estimates: key = file vertex id.
+  double worst = 0.0;
+  int poses = 0;
+  for (const Service::SessionEstimate& s : service.Estimates()) {
+    for (size_t k = 0; k < s.poses.size(); ++k) {
+      Pose2 got;
+      REQUIRE(PoseFromWire(s.poses[k], "pose", &got).ok());
+      const Pose2& want = expected_estimate[graph.FindVertex(s.first_key + k)];
+      worst = std::max(
+          {worst, (got.translation() - want.translation()).norm(), YawDifference(got, want)});
+      ++poses;
+    }
+  }
+  CHECK(poses == graph.num_vertices());
+  CHECK(worst < 1e-6);
+}
+
+// ---- Bad input ----
+
+keyframe_t Keyframe(int32_t session, int64_t key) {
+  keyframe_t k{};
+  k.header = {0, key, "robot"};
+  k.robot_id = 0;
+  k.session_id = session;
+  k.key = key;
+  k.stamp_utime = key * 1000000;
+  k.dim = keyframe_t::DIM_SE2;
+  k.odom_pose = PoseToWire(Pose2(key, 0.0, 0.0));
+  k.has_odom_edge = key > 0;
+  k.odom_delta = PoseToWire(Pose2(1.0, 0.0, 0.0));
+  InformationToWire<Pose2>(Pose2::Matrix::Identity() * 100.0, k.information);
+  return k;
+}
+
+loop_hypothesis_t Loop(int64_t id, int64_t from, int64_t to) {
+  loop_hypothesis_t l{};
+  l.header = {0, id, "robot"};
+  l.hypothesis_id = id;
+  l.key_from = from;
+  l.key_to = to;
+  l.dim = keyframe_t::DIM_SE2;
+  l.measurement = PoseToWire(Pose2(static_cast<double>(to - from), 0.0, 0.0));
+  InformationToWire<Pose2>(Pose2::Matrix::Identity() * 100.0, l.information);
+  l.score = 1.0f;
+  return l;
+}
+
+template <class Message>
+std::vector<uint8_t> Bytes(const Message& m) {
+  std::vector<uint8_t> bytes(m.getEncodedSize());
+  m.encode(bytes.data(), 0, static_cast<int>(bytes.size()));
+  return bytes;
+}
+
+struct BadInput {
+  const char* what;
+  std::string channel;
+  std::vector<uint8_t> bytes;
+  const char* field;  // expected error_t.field
+};
+
+TEST_CASE("Every kind of bad input is answered on the error channel and nothing valid is lost",
+          "[daemon]") {
+  RecordingSink sink;
+  DaemonOptions daemon;
+  daemon.limits.max_message_bytes = 4096;
+  IrrrOptions options;
+  options.cluster_gap = 3.0;
+  Service service(daemon, options, &sink);
+  const DaemonChannels& ch = daemon.channels;
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+
+  // A valid session of 20 keys on a straight line, and four true loops (poses 2 apart).
+  std::vector<std::pair<std::string, std::vector<uint8_t>>> valid;
+  int valid_loops = 0;
+  for (int64_t key = 0; key < 20; ++key) {
+    valid.emplace_back(ch.keyframe, Bytes(Keyframe(0, key)));
+    if (key >= 10 && key % 3 == 1) {
+      valid.emplace_back(ch.loop, Bytes(Loop(key, key - 2, key)));
+      ++valid_loops;
+    }
+  }
+  session_event_t end{};
+  end.header = {0, 0, "robot"};
+  end.event = session_event_t::END;
+  valid.emplace_back(ch.session, Bytes(end));
+
+  std::vector<BadInput> bad;
+  auto keyframe = [&](const char* what, const char* field, auto edit) {
+    keyframe_t k = Keyframe(0, 5);
+    edit(k);
+    bad.push_back({what, ch.keyframe, Bytes(k), field});
+  };
+  auto loop = [&](const char* what, const char* field, auto edit) {
+    loop_hypothesis_t l = Loop(100, 3, 5);
+    edit(l);
+    bad.push_back({what, ch.loop, Bytes(l), field});
+  };
+  keyframe("NaN in the odometry", "odom_delta.t", [&](keyframe_t& k) { k.odom_delta.t[0] = nan; });
+  keyframe("infinite pose", "odom_pose.t", [](keyframe_t& k) {
+    k.odom_pose.t[1] = std::numeric_limits<double>::infinity();
+  });
+  keyframe("quaternion of norm 2", "odom_delta.q", [](keyframe_t& k) { k.odom_delta.q[0] = 2.0; });
+  keyframe("SE(2) pose with a z", "odom_delta.t", [](keyframe_t& k) { k.odom_delta.t[2] = 1.0; });
+  keyframe("SE(2) pose rotating about x", "odom_delta.q", [](keyframe_t& k) {
+    k.odom_delta.q[0] = std::sqrt(0.5);
+    k.odom_delta.q[1] = std::sqrt(0.5);
+    k.odom_delta.q[3] = 0.0;
+  });
+  keyframe("information not positive definite", "information", [](keyframe_t& k) {
+    k.information[2][2] = -1.0;
+  });
+  keyframe(
+      "information not symmetric", "information", [](keyframe_t& k) { k.information[0][1] = 5.0; });
+  keyframe("information with NaN", "information[1][1]", [&](keyframe_t& k) {
+    k.information[1][1] = nan;
+  });
+  keyframe("information outside the SE(2) block", "information[4][4]", [](keyframe_t& k) {
+    k.information[4][4] = 1.0;
+  });
+  keyframe("unknown dimension", "dim", [](keyframe_t& k) { k.dim = 4; });
+  keyframe("negative key", "key", [](keyframe_t& k) { k.key = -1; });
+  keyframe("negative robot", "robot_id", [](keyframe_t& k) { k.robot_id = -2; });
+  keyframe(
+      "has_odom_edge not boolean", "has_odom_edge", [](keyframe_t& k) { k.has_odom_edge = 7; });
+  keyframe("empty sender", "header.sender", [](keyframe_t& k) { k.header.sender.clear(); });
+  keyframe("duplicate key", "key", [](keyframe_t& k) { k.key = 0; });
+  keyframe("key gap", "key", [](keyframe_t& k) { k.key = 40; });
+  keyframe("session changes pose type", "dim", [](keyframe_t& k) {
+    k.dim = keyframe_t::DIM_SE3;
+    InformationToWire<Pose3>(Pose3::Matrix::Identity(), k.information);
+  });
+  keyframe("later pose without odometry", "has_odom_edge", [](keyframe_t& k) {
+    k.key = 20, k.has_odom_edge = 0;
+  });
+  keyframe("stamp older than the session's last", "stamp_utime", [](keyframe_t& k) {
+    k.key = 20, k.stamp_utime = 0;
+  });
+  loop("loop to an unknown key", "key_to", [](loop_hypothesis_t& l) { l.key_to = 999; });
+  loop("loop from an unknown session", "session_from", [](loop_hypothesis_t& l) {
+    l.session_from = 9;
+  });
+  loop("loop of the other pose type", "dim", [](loop_hypothesis_t& l) {
+    l.dim = keyframe_t::DIM_SE3;
+    InformationToWire<Pose3>(Pose3::Matrix::Identity(), l.information);
+  });
+  loop("self-loop", "key_to", [](loop_hypothesis_t& l) { l.key_to = 3; });
+  loop("duplicate hypothesis id", "hypothesis_id", [](loop_hypothesis_t& l) {
+    l.hypothesis_id = 13;
+  });
+  loop("negative hypothesis id", "hypothesis_id", [](loop_hypothesis_t& l) {
+    l.hypothesis_id = -5;
+  });
+  loop("NaN score", "score", [&](loop_hypothesis_t& l) { l.score = static_cast<float>(nan); });
+  loop("loop information singular", "information", [](loop_hypothesis_t& l) {
+    InformationToWire<Pose2>(Pose2::Matrix::Zero(), l.information);
+  });
+  {
+    session_event_t e{};
+    e.header = {0, 1, "robot"};
+    e.event = 9;
+    bad.push_back({"unknown session event", ch.session, Bytes(e), "event"});
+    e.event = session_event_t::END;
+    e.session_id = 77;
+    bad.push_back({"END of an unknown session", ch.session, Bytes(e), "session_id"});
+  }
+  {
+    std::vector<uint8_t> garbage(64, 0xAB);
+    bad.push_back({"garbage bytes", ch.keyframe, garbage, ""});
+    std::vector<uint8_t> truncated = Bytes(Keyframe(0, 5));
+    truncated.resize(truncated.size() / 2);
+    bad.push_back({"truncated message", ch.loop, truncated, ""});
+    bad.push_back({"a keyframe on the loop channel", ch.loop, Bytes(Keyframe(0, 5)), ""});
+    bad.push_back(
+        {"message over max_message_bytes", ch.keyframe, std::vector<uint8_t>(5000, 0), ""});
+  }
+  REQUIRE(bad.size() >= 30);
+
+  // The bad inputs go in between the valid ones, at the point where the state they test holds
+  // (after key 19 was received: a duplicate key 0, a gap to 40, an older stamp for key 20).
+  int answered = 0;
+  auto errors = [&] { return sink.Decoded<error_t>(ch.error); };
+  size_t next_bad = 0;
+  for (size_t k = 0; k < valid.size(); ++k) {
+    service.Receive(
+        valid[k].first, valid[k].second.data(), static_cast<int>(valid[k].second.size()));
+    service.ProcessQueued(std::chrono::milliseconds(0));
+    if (k + 2 != valid.size()) continue;  // after the last keyframe and loop, before END
+    for (; next_bad < bad.size(); ++next_bad) {
+      const BadInput& b = bad[next_bad];
+      INFO(b.what);
+      const size_t before = errors().size();
+      service.Receive(b.channel, b.bytes.data(), static_cast<int>(b.bytes.size()));
+      service.ProcessQueued(std::chrono::milliseconds(0));
+      const std::vector<error_t> now = errors();
+      REQUIRE(now.size() == before + 1);
+      const error_t& e = now.back();
+      CHECK(e.channel == b.channel);
+      CHECK_THAT(e.field, Contains(b.field));
+      CHECK_FALSE(e.reason.empty());
+      CHECK(e.daemon_id == daemon.daemon_id);
+      ++answered;
+    }
+  }
+  CHECK(answered == static_cast<int>(bad.size()));
+  const status_t status = service.CurrentStatus();
+  CHECK(status.n_errors == static_cast<int64_t>(bad.size()));
+  CHECK(status.n_undecodable == 4);
+  CHECK(status.last_error.size() > 0);
+  // Every valid input was applied: 20 keys, four loops, all accepted once the session ended.
+  REQUIRE(valid_loops == 4);
+  CHECK(status.n_keyframes == 20);
+  CHECK(status.n_hypotheses == valid_loops);
+  CHECK(status.n_accepted == valid_loops);
+  CHECK(status.n_rejected == 0);
+  const std::vector<HypothesisDecision> decisions = service.Decisions();
+  REQUIRE(static_cast<int>(decisions.size()) == valid_loops);
+  for (const HypothesisDecision& d : decisions) CHECK(d.decision.state == LoopState::kAccepted);
+}
+
+TEST_CASE("A full input queue answers instead of growing", "[daemon]") {
+  RecordingSink sink;
+  DaemonOptions daemon;
+  daemon.limits.queue_limit = 5;
+  Service service(daemon, IrrrOptions(), &sink);
+  for (int64_t key = 0; key < 8; ++key) {
+    const std::vector<uint8_t> bytes = Bytes(Keyframe(0, key));
+    service.Receive(daemon.channels.keyframe, bytes.data(), static_cast<int>(bytes.size()));
+  }
+  CHECK(service.QueueDepth() == 5);
+  const std::vector<error_t> errors = sink.Decoded<error_t>(daemon.channels.error);
+  REQUIRE(errors.size() == 3);
+  CHECK_THAT(errors[0].reason, Contains("queue full"));
+  CHECK(errors[0].key == 5);
+  CHECK(service.ProcessQueued(std::chrono::milliseconds(0)) == 5);
+  CHECK(service.CurrentStatus().n_keyframes == 5);
+}
+
+TEST_CASE("Corrections carry map-to-odometry transforms and every pose in chunks", "[daemon]") {
+  // One session of 2000 keys (three pose chunks), odometry frame offset from the map frame.
+  RecordingSink sink;
+  DaemonOptions daemon;
+  IrrrOptions options;
+  options.cluster_gap = 5.0;
+  Service service(daemon, options, &sink);
+  const int kKeys = 2000;
+  for (int64_t key = 0; key < kKeys; ++key) {
+    keyframe_t k = Keyframe(4, key);
+    k.robot_id = 2;
+    k.odom_pose = PoseToWire(Pose2(10.0 + key, 5.0, 0.0));  // odometry frame: origin at (10, 5)
+    const std::vector<uint8_t> bytes = Bytes(k);
+    service.Receive(daemon.channels.keyframe, bytes.data(), static_cast<int>(bytes.size()));
+  }
+  loop_hypothesis_t l = Loop(1, 1990, 1995);
+  l.robot_from = l.robot_to = 2;
+  l.session_from = l.session_to = 4;
+  std::vector<uint8_t> bytes = Bytes(l);
+  service.Receive(daemon.channels.loop, bytes.data(), static_cast<int>(bytes.size()));
+  session_event_t flush{};
+  flush.header = {0, 0, "robot"};
+  flush.event = session_event_t::FLUSH;
+  bytes = Bytes(flush);
+  service.Receive(daemon.channels.session, bytes.data(), static_cast<int>(bytes.size()));
+  service.ProcessQueued(std::chrono::milliseconds(0));
+
+  const std::vector<correction_t> corrections =
+      sink.Decoded<correction_t>(daemon.channels.correction);
+  REQUIRE(corrections.size() == 1);
+  const correction_t& c = corrections[0];
+  CHECK(c.solution_id == 1);
+  REQUIRE(c.n_sessions == 1);
+  CHECK(c.sessions[0].robot_id == 2);
+  CHECK(c.sessions[0].session_id == 4);
+  CHECK(c.sessions[0].latest_key == kKeys - 1);
+  // The map frame is that of the first pose: map_T_odom = (0,0) composed with odom(0)^-1.
+  Pose2 map_T_odom;
+  REQUIRE(PoseFromWire(c.sessions[0].map_T_odom, "map_T_odom", &map_T_odom).ok());
+  CHECK(map_T_odom.translation().x() == Approx(-10.0).margin(1e-9));
+  CHECK(map_T_odom.translation().y() == Approx(-5.0).margin(1e-9));
+  CHECK(c.closed_utime <= c.published_utime);
+  CHECK(c.n_verdict_chunks == 1);
+
+  const std::vector<solution_t> chunks = sink.Decoded<solution_t>(daemon.channels.solution);
+  REQUIRE(static_cast<int>(chunks.size()) == c.n_pose_chunks);
+  CHECK(c.n_pose_chunks == (kKeys + solution_t::MAX_POSES - 1) / solution_t::MAX_POSES);
+  int64_t next_key = 0;
+  for (size_t k = 0; k < chunks.size(); ++k) {
+    CHECK(chunks[k].chunk_index == static_cast<int>(k));
+    CHECK(chunks[k].first_key == next_key);
+    CHECK(Bytes(chunks[k]).size() < 65000);  // one UDP datagram
+    for (int i = 0; i < chunks[k].n_poses; ++i) {
+      CHECK(chunks[k].poses[i].t[0] == Approx(static_cast<double>(next_key + i)).margin(1e-6));
+    }
+    next_key += chunks[k].n_poses;
+  }
+  CHECK(next_key == kKeys);
+  const std::vector<verdicts_t> verdicts = sink.Decoded<verdicts_t>(daemon.channels.verdicts);
+  REQUIRE(verdicts.size() == 1);
+  REQUIRE(verdicts[0].n_verdicts == 1);
+  CHECK(verdicts[0].verdicts[0].state == verdict_t::ACCEPTED);
+  CHECK(verdicts[0].verdicts[0].hypothesis_id == 1);
+  CHECK(verdicts[0].verdicts[0].sender == "robot");
+}
+
+// ---- Processes end to end (inside a private network namespace: tests/netns_run.sh) ----
+
+// A process started in the background; SIGTERM and wait on destruction.
+class Background {
+ public:
+  Background(const std::string& command, const std::string& log) {
+    pid_ = fork();
+    REQUIRE(pid_ >= 0);
+    if (pid_ == 0) {
+      execl("/bin/sh",
+            "sh",
+            "-c",
+            ("exec " + command + " > '" + log + "' 2>&1").c_str(),
+            static_cast<char*>(nullptr));
+      _exit(127);
+    }
+  }
+  // Sends `signal` and returns the exit code.
+  int Stop(int signal = SIGTERM) {
+    if (pid_ <= 0) return -1;
+    kill(pid_, signal);
+    int status = 0;
+    waitpid(pid_, &status, 0);
+    pid_ = -1;
+    return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+  }
+  ~Background() { Stop(SIGKILL); }
+
+ private:
+  pid_t pid_ = -1;
+};
+
+// irrr-batch --method irrr on `input`: its decisions and optimized graph.
+void RunBatch(const std::string& dir, const std::string& input, const std::string& config) {
+  const std::string command =
+      std::string(IRRR_BATCH) + " " + Quoted(input) + " --method irrr --config " + Quoted(config) +
+      " --decisions " + Quoted(dir + "/batch.csv") + " --output " + Quoted(dir + "/batch.g2o");
+  const int code = RunTool(command, dir + "/batch.log");
+  INFO(command << "\n" << ReadText(dir + "/batch.log"));
+  REQUIRE(code == 0);
+}
+
+// The listener's decisions and map equal irrr-batch's: same states, clusters and steps, chi2
+// to 1e-9, every pose within 1e-6.
+void CheckSameAsBatch(const std::string& dir) {
+  std::vector<DecisionRow> batch;
+  std::vector<DecisionRow> daemon;
+  {
+    std::ifstream in(dir + "/batch.csv");
+    REQUIRE(ReadDecisionsCsv(in, &batch).ok());
+    std::ifstream in2(dir + "/listen.csv");
+    const Status s = ReadDecisionsCsv(in2, &daemon);
+    INFO(ReadText(dir + "/listen.log"));
+    REQUIRE(s.ok());
+  }
+  REQUIRE(daemon.size() == batch.size());
+  for (size_t k = 0; k < batch.size(); ++k) {
+    INFO("row " << k);
+    CHECK(daemon[k].edge_index == batch[k].edge_index);
+    CHECK(daemon[k].from == batch[k].from);
+    CHECK(daemon[k].to == batch[k].to);
+    CHECK(daemon[k].session_from == batch[k].session_from);
+    CHECK(daemon[k].decision.state == batch[k].decision.state);
+    CHECK(daemon[k].decision.cluster == batch[k].decision.cluster);
+    CHECK(daemon[k].decision.step == batch[k].decision.step);
+    if (!std::isnan(batch[k].decision.chi2)) {
+      CHECK(daemon[k].decision.chi2 == Approx(batch[k].decision.chi2).epsilon(1e-9));
+    }
+  }
+  GraphFile<Pose2> batch_map;
+  GraphFile<Pose2> daemon_map;
+  {
+    std::ifstream in(dir + "/batch.g2o");
+    REQUIRE(ReadGraphFile(in, FileFormat::kG2o, ReadOptions(), &batch_map).ok());
+    std::ifstream in2(dir + "/listen.g2o");
+    REQUIRE(ReadGraphFile(in2, FileFormat::kG2o, ReadOptions(), &daemon_map).ok());
+  }
+  REQUIRE(daemon_map.vertices.size() == batch_map.vertices.size());
+  CHECK(daemon_map.edges.size() == batch_map.edges.size());
+  std::map<int64_t, Pose2> by_id;
+  for (const FileVertex<Pose2>& v : batch_map.vertices) by_id[v.id] = v.estimate;
+  double worst = 0.0;
+  for (const FileVertex<Pose2>& v : daemon_map.vertices) {
+    REQUIRE(by_id.count(v.id) == 1);
+    const Pose2& want = by_id[v.id];
+    worst = std::max({worst,
+                      (v.estimate.translation() - want.translation()).norm(),
+                      YawDifference(v.estimate, want)});
+  }
+  CHECK(worst < 1e-6);
+}
+
+const char* const kUdpmUrl = "udpm://239.255.76.67:7667?ttl=0";
+
+std::string WriteDaemonConfig(const std::string& dir) {
+  const std::string config = dir + "/irrrd.json";
+  WriteText(config,
+            std::string("{\"daemon\": {\"lcm_url\": \"") + kUdpmUrl +
+                "\", \"status_hz\": 5}, \"irrr\": {\"cluster_gap\": 10}}\n");
+  return config;
+}
+
+TEST_CASE("udpm: irrrd fed by irrr-inject decides as irrr-batch", "[.][udpm]") {
+  const std::string dir = TestDirectory("daemon_udpm");
+  const std::string input = MakeTwoSessionIntel(dir);
+  const std::string config = WriteDaemonConfig(dir);
+  RunBatch(dir, input, config);
+
+  Background daemon(std::string(IRRRD) + " --config " + Quoted(config), dir + "/daemon.log");
+  Background listener(std::string(IRRR_LISTEN) + " --config " + Quoted(config) + " --decisions " +
+                          Quoted(dir + "/listen.csv") + " --output " + Quoted(dir + "/listen.g2o"),
+                      dir + "/listen.log");
+  std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  const std::string inject = std::string(IRRR_INJECT) + " " + Quoted(input) + " --config " +
+                             Quoted(config) + " --lcm-url '" + kUdpmUrl +
+                             "' --rate 0 --wait --timeout 300";
+  const int code = RunTool(inject, dir + "/inject.log");
+  INFO(inject << "\n" << ReadText(dir + "/inject.log") << "\n" << ReadText(dir + "/daemon.log"));
+  REQUIRE(code == 0);
+  CHECK(daemon.Stop() == 0);
+  CHECK(listener.Stop(SIGINT) == 0);
+  CHECK_THAT(ReadText(dir + "/daemon.log"), Contains("0 input(s) rejected"));
+  CheckSameAsBatch(dir);
+}
+
+TEST_CASE("udpm: an LCM log written by irrr-inject and replayed by lcm-logplayer gives the same",
+          "[.][udpm]") {
+  const std::string dir = TestDirectory("daemon_lcmlog");
+  const std::string input = MakeTwoSessionIntel(dir);
+  const std::string config = WriteDaemonConfig(dir);
+  RunBatch(dir, input, config);
+  const std::string log = dir + "/input.lcmlog";
+  {
+    const std::string write = std::string(IRRR_INJECT) + " " + Quoted(input) + " --lcmlog " +
+                              Quoted(log) + " --rate 5000";
+    const int code = RunTool(write, dir + "/inject.log");
+    INFO(write << "\n" << ReadText(dir + "/inject.log"));
+    REQUIRE(code == 0);
+  }
+  Background daemon(std::string(IRRRD) + " --config " + Quoted(config), dir + "/daemon.log");
+  Background listener(std::string(IRRR_LISTEN) + " --config " + Quoted(config) + " --decisions " +
+                          Quoted(dir + "/listen.csv") + " --output " + Quoted(dir + "/listen.g2o"),
+                      dir + "/listen.log");
+  std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  {
+    const std::string play = std::string("lcm-logplayer -l '") + kUdpmUrl + "' " + Quoted(log);
+    const int code = RunTool(play, dir + "/play.log");
+    INFO(play << "\n" << ReadText(dir + "/play.log"));
+    REQUIRE(code == 0);
+  }
+  // The log is played; wait until the daemon has applied it (its status says queue 0 and the
+  // listener heard the last step), then stop both.
+  lcm::LCM lcm(kUdpmUrl);
+  REQUIRE(lcm.good());
+  struct Watcher {
+    status_t status{};
+    bool heard = false;
+    void On(const lcm::ReceiveBuffer* b, const std::string&) {
+      heard = status.decode(b->data, 0, static_cast<int>(b->data_size)) >= 0;
+    }
+  } watcher;
+  lcm.subscribe("IRRR_STATUS", &Watcher::On, &watcher);
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::minutes(5);
+  int settled = 0;
+  while (settled < 3 && std::chrono::steady_clock::now() < deadline) {
+    watcher.heard = false;
+    lcm.handleTimeout(1000);
+    if (!watcher.heard) continue;
+    settled =
+        watcher.status.queue_depth == 0 && watcher.status.n_keyframes == 400 ? settled + 1 : 0;
+  }
+  CHECK(settled == 3);
+  CHECK(daemon.Stop() == 0);
+  CHECK(listener.Stop(SIGINT) == 0);
+  CheckSameAsBatch(dir);
+}
+
+}  // namespace
+}  // namespace irrr
