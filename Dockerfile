@@ -1,0 +1,58 @@
+# syntax=docker/dockerfile:1
+# irrrd, the iRRR loop-closing daemon, in a small Debian bookworm image.
+#
+#   docker build -t irrrd .
+#   docker run --rm --network host irrrd
+#   docker run --rm --network host -e LCM_DEFAULT_URL='udpm://239.255.76.67:7667?ttl=1' irrrd
+#   docker run --rm --network host -v "$PWD/my.json:/etc/irrrd/irrrd.json:ro" irrrd --log-level debug
+#
+# LCM's udpm:// transport is UDP multicast: use the host network (or a macvlan network) so that
+# irrrd and the robots share the multicast group; Docker's default bridge does not forward it.
+# LCM's default URL has ttl=0 (this host only); for robots on other hosts set ttl=1, through
+# LCM_DEFAULT_URL as above, --lcm-url or "daemon.lcm_url" in the config. The host still needs a
+# multicast route on the robot interface (see the README).
+# Arguments after the image name are appended to irrrd's command line. `docker stop` sends
+# SIGTERM: irrrd applies what it has received, publishes a STOPPING status and exits 0.
+# `docker kill -s HUP` reloads the config.
+
+FROM debian:bookworm AS build
+# liblcm-bin for lcm-gen, libglib2.0-dev because lcm.pc requires glib-2.0; libopenblas0-serial is
+# the BLAS that CHOLMOD uses on the developers' machines (tools/setup), kept the same here.
+# No catch2: the tests are not built (see below).
+RUN apt-get update \
+ && apt-get install -y --no-install-recommends \
+      cmake g++ make pkg-config \
+      liblcm-dev liblcm-bin libglib2.0-dev \
+      libeigen3-dev libsuitesparse-dev libopenblas0-serial \
+      libboost-dev libfmt-dev libcli11-dev nlohmann-json3-dev libspdlog-dev \
+ && rm -rf /var/lib/apt/lists/*
+WORKDIR /src
+COPY . .
+# Tests off to keep the image build fast; they run in CI, and the netns ones could not run here
+# anyway (docker build does not allow unshare).
+RUN cmake -S . -B build -DCMAKE_BUILD_TYPE=Release -DIRRR_BUILD_TESTS=OFF \
+      -DIRRR_BUILD_JAVA_TYPES=OFF \
+ && cmake --build build -j"$(nproc)" \
+ && cmake --install build --prefix /opt/irrr
+
+FROM debian:bookworm-slim AS runtime
+# Only the shared libraries the installed binaries need (ldd + dpkg -S on the build output):
+# liblcm1 (which pulls in libglib2.0-0), libspdlog1.10 + libfmt9, libcholmod3 (pulls in the rest of
+# SuiteSparse, metis and libgomp1). Naming libopenblas0-serial makes apt pick it for CHOLMOD's
+# libblas.so.3/liblapack.so.3 instead of the slow reference BLAS (libblas3/liblapack3).
+RUN apt-get update \
+ && apt-get install -y --no-install-recommends \
+      liblcm1 libglib2.0-0 libspdlog1.10 libfmt9 libcholmod3 libopenblas0-serial \
+ && rm -rf /var/lib/apt/lists/* \
+ && groupadd --gid 10001 irrrd \
+ && useradd --uid 10001 --gid irrrd --no-create-home --home-dir /nonexistent \
+      --shell /usr/sbin/nologin irrrd
+# Only bin/: irrrd plus the installed clients (irrr-inject, irrr-listen, ...) for checks in place.
+COPY --from=build /opt/irrr/bin/ /usr/local/bin/
+COPY config/irrrd.json /etc/irrrd/irrrd.json
+# A numeric user, so that runtimes can check "not root" without reading /etc/passwd.
+USER 10001:10001
+# irrrd handles SIGTERM/SIGINT/SIGHUP itself (signalfd) and starts no child processes, so it can
+# run as PID 1 without an init.
+STOPSIGNAL SIGTERM
+ENTRYPOINT ["/usr/local/bin/irrrd", "--config", "/etc/irrrd/irrrd.json"]
