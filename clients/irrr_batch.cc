@@ -46,45 +46,17 @@ struct BatchArguments {
 
 // Precision and recall of the decisions against an irrr-corrupt labels file (rows by file edge
 // index). Returns EX_OK or EX_DATAERR with a message.
-int PrintScores(const std::string& path,
-                const std::vector<int>& graph_edge_of_file_edge,
-                const std::vector<LoopDecision>& decisions) {
+int PrintScores(const std::string& path, const std::vector<DecisionRow>& decisions) {
   std::ifstream in(path);
-  std::vector<LabelRow> rows;
-  if (Status s = in ? ReadLabelsCsv(in, &rows) : Status::Error("cannot open"); !s.ok()) {
+  std::vector<LabelRow> labels;
+  Scores scores;
+  Status s = in ? ReadLabelsCsv(in, &labels) : Status::Error("cannot open");
+  if (s.ok()) s = ScoreDecisions(labels, decisions, &scores);
+  if (!s.ok()) {
     fmt::print(stderr, "irrr-batch: {}: {}\n", path, s.message());
     return EX_DATAERR;
   }
-  int true_loops = 0;
-  int accepted_true = 0;
-  int accepted_wrong = 0;
-  for (const LabelRow& row : rows) {
-    if (row.edge_index < 0 || row.edge_index >= static_cast<int>(graph_edge_of_file_edge.size())) {
-      fmt::print(stderr,
-                 "irrr-batch: {}: edge_index {} is not an edge of the input\n",
-                 path,
-                 row.edge_index);
-      return EX_DATAERR;
-    }
-    const bool accepted =
-        decisions[graph_edge_of_file_edge[row.edge_index]].state == LoopState::kAccepted;
-    true_loops += row.outlier ? 0 : 1;
-    accepted_true += !row.outlier && accepted ? 1 : 0;
-    accepted_wrong += row.outlier && accepted ? 1 : 0;
-  }
-  const int accepted = accepted_true + accepted_wrong;
-  fmt::print(
-      "scores    against {}: precision {:.4f} ({} of {} accepted are true), recall {:.4f} ({} of "
-      "{} true loops), {} of {} wrong loops accepted\n",
-      path,
-      accepted > 0 ? static_cast<double>(accepted_true) / accepted : 1.0,
-      accepted_true,
-      accepted,
-      true_loops > 0 ? static_cast<double>(accepted_true) / true_loops : 1.0,
-      accepted_true,
-      true_loops,
-      accepted_wrong,
-      static_cast<int>(rows.size()) - true_loops);
+  fmt::print("scores    against {}: {}\n", path, FormatScores(scores));
   return EX_OK;
 }
 
@@ -263,10 +235,10 @@ int Run(const BatchArguments& args, const IrrrOptions& options, FileFormat forma
         decide_s);
   }
 
+  const std::vector<DecisionRow> rows =
+      DecisionRowsInFileOrder(file, graph, graph_edge_of_file_edge, decisions);
   if (!args.labels.empty()) {
-    if (int code = PrintScores(args.labels, graph_edge_of_file_edge, decisions); code != EX_OK) {
-      return code;
-    }
+    if (int code = PrintScores(args.labels, rows); code != EX_OK) return code;
   }
 
   if (!ground_truth.empty()) {
@@ -274,8 +246,6 @@ int Run(const BatchArguments& args, const IrrrOptions& options, FileFormat forma
   }
 
   if (!args.decisions.empty()) {
-    const std::vector<DecisionRow> rows =
-        DecisionRowsInFileOrder(file, graph, graph_edge_of_file_edge, decisions);
     if (int code = WriteOrFail(args.decisions,
                                [&](std::ostream& out) { return WriteDecisionsCsv(out, rows); });
         code != EX_OK) {

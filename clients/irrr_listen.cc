@@ -1,7 +1,7 @@
 // irrr-listen: hears what irrrd publishes and keeps the latest map and every verdict.
 //
-//   irrr-listen [--lcm-url URL] [--output MAP.g2o] [--decisions OUT.csv] [--idle-exit S]
-//               [--config FILE]
+//   irrr-listen [--lcm-url URL] [--output MAP.g2o] [--decisions OUT.csv] [--labels LABELS.csv]
+//               [--idle-exit S] [--config FILE]
 //
 // It assembles each solution (a correction_t with all its verdict and pose chunks) and keeps,
 // per session, the newest estimate; keys that no solution has covered yet continue the latest
@@ -13,8 +13,9 @@
 //    robot_id * 1000000000 + key when keys repeat across robots;
 //  - --decisions: one row per hypothesis in irrr-batch's CSV format, ordered by (sender,
 //    hypothesis_id): edge_index = hypothesis_id, from/to = keys, session_from/to = session ids.
-// Exit codes follow sysexits.h: 64 usage, 69 LCM unavailable, 73 output not written,
-// 78 bad configuration.
+// --labels prints precision and recall against irrr-corrupt's labels. Exit codes follow
+// sysexits.h: 64 usage, 65 bad labels, 69 LCM unavailable, 73 output not written, 78 bad
+// configuration.
 
 #include <poll.h>
 #include <signal.h>
@@ -24,7 +25,9 @@
 
 #include <algorithm>
 #include <chrono>
+#include <csignal>
 #include <cmath>
+#include <fstream>
 #include <limits>
 #include <map>
 #include <set>
@@ -327,6 +330,7 @@ struct Arguments {
   std::string decisions;
   double idle_exit_s = 0.0;
   std::string config;
+  std::string labels;
 };
 
 template <class Pose>
@@ -338,6 +342,19 @@ Status WriteMap(const Listener& listener, const std::string& path) {
 
 int WriteOutputs(const Arguments& args, const Listener& listener) {
   int code = EX_OK;
+  if (!args.labels.empty()) {
+    std::ifstream in(args.labels);
+    std::vector<LabelRow> labels;
+    Scores scores;
+    Status s = in ? ReadLabelsCsv(in, &labels) : Status::Error("cannot open");
+    if (s.ok()) s = ScoreDecisions(labels, listener.DecisionRows(), &scores);
+    if (s.ok()) {
+      fmt::print("scores    against {}: {}\n", args.labels, FormatScores(scores));
+    } else {
+      fmt::print(stderr, "irrr-listen: {}: {}\n", args.labels, s.message());
+      code = EX_DATAERR;
+    }
+  }
   if (!args.decisions.empty()) {
     const std::vector<DecisionRow> rows = listener.DecisionRows();
     if (Status s = WriteFileAtomically(
@@ -386,6 +403,11 @@ int Run(const Arguments& args) {
   sigemptyset(&signals);
   sigaddset(&signals, SIGTERM);
   sigaddset(&signals, SIGINT);
+  // A shell starts background jobs with SIGINT ignored, and an ignored signal never reaches a
+  // signalfd: take the default disposition back before blocking.
+  for (int signal_number : {SIGTERM, SIGINT, SIGHUP}) {
+    if (sigismember(&signals, signal_number)) std::signal(signal_number, SIG_DFL);
+  }
   sigprocmask(SIG_BLOCK, &signals, nullptr);
   const int signal_fd = signalfd(-1, &signals, SFD_CLOEXEC);
 
@@ -465,9 +487,13 @@ int main(int argc, char** argv) {
                  "exit this many seconds after the last message (0: only on SIGINT/SIGTERM)")
       ->check(CLI::NonNegativeNumber);
   app.add_option("--config", args.config, "the daemon's JSON configuration (for channel names)");
+  app.add_option("--labels",
+                 args.labels,
+                 "irrr-corrupt's labels (single robot: edge_index = hypothesis_id): print "
+                 "precision and recall on exit");
   app.footer(
-      "Exit codes: 0 ok, 64 usage, 69 LCM unavailable, 73 output not written, 78 bad "
-      "configuration.");
+      "Exit codes: 0 ok, 64 usage, 65 bad labels, 69 LCM unavailable, 73 output not "
+      "written, 78 bad configuration.");
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -1,5 +1,7 @@
 #include "clients/loop_csv.h"
 
+#include <map>
+
 #include <charconv>
 #include <cmath>
 #include <limits>
@@ -213,5 +215,48 @@ template std::vector<DecisionRow> DecisionRowsInFileOrder<Pose3>(const GraphFile
                                                                  const PoseGraph<Pose3>&,
                                                                  const std::vector<int>&,
                                                                  const std::vector<LoopDecision>&);
+
+double Scores::precision() const {
+  const int accepted = accepted_true + accepted_wrong;
+  return accepted > 0 ? static_cast<double>(accepted_true) / accepted : 1.0;
+}
+
+double Scores::recall() const {
+  return true_loops > 0 ? static_cast<double>(accepted_true) / true_loops : 1.0;
+}
+
+Status ScoreDecisions(const std::vector<LabelRow>& labels,
+                      const std::vector<DecisionRow>& decisions,
+                      Scores* scores) {
+  std::map<int, const DecisionRow*> by_edge;
+  for (const DecisionRow& row : decisions) by_edge[row.edge_index] = &row;
+  Scores out;
+  for (const LabelRow& label : labels) {
+    const auto it = by_edge.find(label.edge_index);
+    if (it == by_edge.end()) {
+      return Status::Error("edge_index " + std::to_string(label.edge_index) +
+                           " has no decision (is it a loop hypothesis of the input?)");
+    }
+    const bool accepted = it->second->decision.state == LoopState::kAccepted;
+    (label.outlier ? out.wrong_loops : out.true_loops) += 1;
+    (label.outlier ? out.accepted_wrong : out.accepted_true) += accepted ? 1 : 0;
+  }
+  *scores = out;
+  return Status::Ok();
+}
+
+std::string FormatScores(const Scores& s) {
+  return fmt::format(
+      "precision {:.4f} ({} of {} accepted are true), recall {:.4f} ({} of {} true loops), {} of "
+      "{} wrong loops accepted",
+      s.precision(),
+      s.accepted_true,
+      s.accepted_true + s.accepted_wrong,
+      s.recall(),
+      s.accepted_true,
+      s.true_loops,
+      s.accepted_wrong,
+      s.wrong_loops);
+}
 
 }  // namespace irrr

@@ -19,6 +19,7 @@
 
 #include <atomic>
 #include <chrono>
+#include <csignal>
 #include <cstdio>
 #include <string>
 #include <thread>
@@ -135,6 +136,11 @@ int Run(const Arguments& args, const CLI::App& app) {
   sigaddset(&signals, SIGTERM);
   sigaddset(&signals, SIGINT);
   sigaddset(&signals, SIGHUP);
+  // A shell starts background jobs with SIGINT ignored, and an ignored signal never reaches a
+  // signalfd: take the default disposition back before blocking.
+  for (int signal_number : {SIGTERM, SIGINT, SIGHUP}) {
+    if (sigismember(&signals, signal_number)) std::signal(signal_number, SIG_DFL);
+  }
   pthread_sigmask(SIG_BLOCK, &signals, nullptr);
   const int signal_fd = signalfd(-1, &signals, SFD_CLOEXEC);
   if (signal_fd < 0) {

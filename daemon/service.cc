@@ -189,6 +189,7 @@ struct Engine {
   Irrr<Pose> irrr;
   std::vector<SessionInfo> sessions;  // by Irrr session index
   std::vector<Pose> odom_pose;        // by Irrr vertex index
+  std::vector<int> anchor;            // by Irrr session: creation order of its map's first session
   std::map<int, Hypothesis> hypothesis_of_edge;
   std::map<int, LoopDecision> published;  // last decision published, by Irrr edge
 
@@ -237,6 +238,7 @@ struct Service::State {
   std::map<std::pair<std::string, int64_t>, HypothesisRef> hypotheses;
   std::vector<HypothesisRef> hypothesis_order;
   int num_sessions = 0;
+  std::vector<SessionName> session_names;  // by creation order
   int64_t num_keyframes = 0;
   int64_t next_vertex_id = 0;
   int64_t solution_id = 0;
@@ -394,6 +396,8 @@ struct Service::State {
       const int64_t id = (int64_t{m.robot_id} << 32) | static_cast<uint32_t>(m.session_id);
       IRRR_CHECK(engine.irrr.AddSession(id, &session).ok());
       ref->index = session;
+      engine.anchor.push_back(num_sessions);
+      session_names.push_back({m.robot_id, m.session_id});
       engine.sessions.push_back({SessionName{m.robot_id, m.session_id}, num_sessions++, m.key});
     }
     int vertex = -1;
@@ -533,13 +537,20 @@ struct Service::State {
   template <class Pose>
   void RunSteps(Engine<Pose>& engine, int64_t closed_utime) {
     while (engine.irrr.HasPendingStep()) {
+      const auto start = std::chrono::steady_clock::now();
       const StepResult step = engine.irrr.RunStep();
-      PublishCorrection(engine, step, closed_utime);
+      const double decide_ms =
+          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
+              .count();
+      PublishCorrection(engine, step, closed_utime, decide_ms);
     }
   }
 
   template <class Pose>
-  void PublishCorrection(Engine<Pose>& engine, const StepResult& step, int64_t closed_utime) {
+  void PublishCorrection(Engine<Pose>& engine,
+                         const StepResult& step,
+                         int64_t closed_utime,
+                         double decide_ms) {
     const Irrr<Pose>& irrr = engine.irrr;
     const std::vector<Pose>& estimate = irrr.estimate();
     const std::vector<int> component_of = irrr.Components();
@@ -589,16 +600,38 @@ struct Service::State {
       }
     }
     correction.n_sessions = static_cast<int32_t>(correction.sessions.size());
+    for (int s : step.sessions) {
+      const int anchor = component_name[component_of[s]];
+      if (anchor == engine.anchor[s]) continue;
+      const SessionName name = engine.sessions[s].name;
+      if (anchor == engine.sessions[s].order) {
+        spdlog::info(
+            "session (robot {}, session {}) split off into its own frame", name.first, name.second);
+      } else {
+        spdlog::info(
+            "session (robot {}, session {}) joined the map of session (robot {}, "
+            "session {})",
+            name.first,
+            name.second,
+            session_names[anchor].first,
+            session_names[anchor].second);
+      }
+      engine.anchor[s] = anchor;
+    }
 
     std::vector<verdicts_t> verdict_chunks;
     int64_t accepted = 0;
     int64_t rejected = 0;
+    int state_changes = 0;  // verdicts also change when only their statistic does
     for (const auto& [edge, h] : engine.hypothesis_of_edge) {
       const LoopDecision& d = irrr.decision(edge);
       accepted += d.state == LoopState::kAccepted ? 1 : 0;
       rejected += d.state != LoopState::kAccepted && d.state != LoopState::kPending ? 1 : 0;
       auto it = engine.published.find(edge);
       if (it != engine.published.end() && SameDecision(it->second, d)) continue;
+      const LoopState before =
+          it == engine.published.end() ? LoopState::kPending : it->second.state;
+      state_changes += d.state != before ? 1 : 0;
       engine.published[edge] = d;
       if (verdict_chunks.empty() || verdict_chunks.back().n_verdicts >= verdicts_t::MAX_VERDICTS) {
         verdicts_t chunk{};
@@ -634,15 +667,17 @@ struct Service::State {
 
     const double latency_ms = 1e-3 * static_cast<double>(correction.published_utime - closed_utime);
     spdlog::info(
-        "step {} (cluster {}): {} sessions in {} component(s) re-estimated, {} verdict(s) "
-        "changed, {} solves, {:.1f} ms after its cluster closed",
+        "step {} (cluster {}): {} decision(s) changed, {} accepted and {} rejected in "
+        "all; "
+        "{} session(s) re-estimated; decided in {:.1f} ms ({} solves), published {:.1f} "
+        "ms after the cluster closed",
         step.step,
         step.cluster,
+        state_changes,
+        accepted,
+        rejected,
         correction.n_sessions,
-        std::set<int>(component_of.begin(), component_of.end()).size(),
-        verdict_chunks.empty() ? 0
-                               : (verdict_chunks.size() - 1) * verdicts_t::MAX_VERDICTS +
-                                     verdict_chunks.back().n_verdicts,
+        decide_ms,
         step.solves,
         latency_ms);
     std::lock_guard<std::mutex> lock(stats_mutex);

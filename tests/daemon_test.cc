@@ -1,6 +1,6 @@
 // The daemon: its configuration, the service in-process over memq:// (same decisions and
 // estimate as RunIncrementalIrrr; every kind of bad input answered, nothing valid lost), and,
-// hidden behind [udpm] and run inside a private network namespace by tests/netns_run.sh, the
+// hidden behind [udpm] and run inside a private network namespace by tools/netns-run, the
 // processes end to end over UDP multicast and through an LCM log.
 
 #include <signal.h>
@@ -532,7 +532,7 @@ TEST_CASE("Corrections carry map-to-odometry transforms and every pose in chunks
   CHECK(verdicts[0].verdicts[0].sender == "robot");
 }
 
-// ---- Processes end to end (inside a private network namespace: tests/netns_run.sh) ----
+// ---- Processes end to end (inside a private network namespace: tools/netns-run) ----
 
 // A process started in the background; SIGTERM and wait on destruction.
 class Background {
