@@ -71,6 +71,7 @@ class StatusWatcher {
         last_seq_keyframe = s.last_seq_keyframe;
         last_seq_loop = s.last_seq_loop;
         last_seq_session = s.last_seq_session;
+        gaps = s.gaps;
       }
     }
   }
@@ -80,6 +81,7 @@ class StatusWatcher {
   int64_t last_seq_keyframe = -1;
   int64_t last_seq_loop = -1;
   int64_t last_seq_session = -1;
+  int64_t gaps = 0;
   int queue_depth = 0;
   int64_t solution_id = 0;
   int64_t accepted = 0;
@@ -242,17 +244,36 @@ int Publish(const Arguments& args,
     bar.Show(k + 1, seconds());
   }
   bar.Show(messages.size(), seconds(), true);
-  if (!args.wait) return EX_OK;
-  // Every message sent received (by channel sequence numbers) and applied. The status is
-  // published by the thread that receives, so its counts and queue depth agree.
+  const double send_s = seconds();
+  // What the daemon received, by channel sequence numbers (the status is published by the thread
+  // that receives, so its counts and queue depth agree). Lost messages never arrive: give up
+  // after a few seconds and report them.
   const int64_t last_keyframe = sequencer->last_keyframe_seq();
   const int64_t last_loop = sequencer->last_loop_seq();
   const int64_t last_session = sequencer->last_session_seq();
-  const bool done = wait_for([&] {
+  auto all_received = [&] {
     return watcher.heard && watcher.last_seq_keyframe >= last_keyframe &&
-           watcher.last_seq_loop >= last_loop && watcher.last_seq_session >= last_session &&
-           watcher.queue_depth == 0;
-  });
+           watcher.last_seq_loop >= last_loop && watcher.last_seq_session >= last_session;
+  };
+  const auto receive_deadline = Clock::now() + std::chrono::seconds(3);
+  const bool received =
+      wait_for([&] { return all_received() || Clock::now() > receive_deadline; }) && all_received();
+  // Messages missing in the middle show as sequence gaps; at the end, as a last seq short of ours.
+  const int64_t tail_lost = std::max<int64_t>(0, last_keyframe - watcher.last_seq_keyframe) +
+                            std::max<int64_t>(0, last_loop - watcher.last_seq_loop) +
+                            std::max<int64_t>(0, last_session - watcher.last_seq_session);
+  fmt::print("sent      {} messages in {:.2f} s ({:.0f} per second); the daemon lost {}\n",
+             messages.size(),
+             send_s,
+             messages.size() / std::max(send_s, 1e-9),
+             watcher.gaps + tail_lost);
+  if (!received) {
+    fmt::print(stderr, "irrr-inject: the daemon did not receive every message\n");
+    return EX_UNAVAILABLE;
+  }
+  if (!args.wait) return EX_OK;
+  // ... and applied.
+  const bool done = wait_for([&] { return all_received() && watcher.queue_depth == 0; });
   if (!done) {
     fmt::print(stderr, "irrr-inject: the daemon did not finish within {} s\n", args.timeout_s);
     return EX_UNAVAILABLE;

@@ -25,8 +25,8 @@
 
 #include <algorithm>
 #include <chrono>
-#include <csignal>
 #include <cmath>
+#include <csignal>
 #include <fstream>
 #include <limits>
 #include <map>
@@ -251,6 +251,7 @@ class Listener {
 
   int64_t latest_solution() const { return latest_solution_; }
   const std::vector<double>& latencies_ms() const { return latencies_ms_; }
+  const std::vector<double>& decide_ms() const { return decide_ms_; }
   bool have_status() const { return have_status_; }
 
  private:
@@ -296,12 +297,13 @@ class Listener {
         h.judged = true;
       }
     }
-    if (id > latest_solution_) {
-      latest_solution_ = id;
-      latest_step_ = c.step;
+    latest_solution_ = std::max(latest_solution_, id);
+    if (c.step >= 0) {  // a step's correction (step -1: a full one, poses and statistics)
+      latest_step_ = std::max(latest_step_, c.step);
       latest_latency_ms_ = 1e-3 * static_cast<double>(c.published_utime - c.closed_utime);
+      latencies_ms_.push_back(latest_latency_ms_);
+      decide_ms_.push_back(c.decide_ms);
     }
-    latencies_ms_.push_back(1e-3 * static_cast<double>(c.published_utime - c.closed_utime));
     pending_.erase(it);
     // Solutions far behind the newest complete one will not complete any more.
     constexpr int64_t kKeepIncomplete = 100;
@@ -320,6 +322,7 @@ class Listener {
   double latest_latency_ms_ = 0.0;
   int incomplete_ = 0;
   std::vector<double> latencies_ms_;
+  std::vector<double> decide_ms_;
   status_t status_{};
   bool have_status_ = false;
 };
@@ -332,6 +335,23 @@ struct Arguments {
   std::string config;
   std::string labels;
 };
+
+// "<what> over N steps: p50 .. ms, p90 .., p99 .., max .." (nothing for no steps).
+void PrintPercentiles(const std::string& what, std::vector<double> values_ms) {
+  if (values_ms.empty()) return;
+  std::sort(values_ms.begin(), values_ms.end());
+  auto at = [&](double q) {
+    const size_t rank = static_cast<size_t>(std::ceil(q * values_ms.size()));
+    return values_ms[std::min(values_ms.size(), std::max<size_t>(rank, 1)) - 1];
+  };
+  fmt::print("{} over {} steps: p50 {:.1f} ms, p90 {:.1f} ms, p99 {:.1f} ms, max {:.1f} ms\n",
+             what,
+             values_ms.size(),
+             at(0.50),
+             at(0.90),
+             at(0.99),
+             values_ms.back());
+}
 
 template <class Pose>
 Status WriteMap(const Listener& listener, const std::string& path) {
@@ -417,12 +437,17 @@ int Run(const Arguments& args) {
     return EX_UNAVAILABLE;
   }
   Listener listener;
-  lcm.subscribe(channels.keyframe, &Listener::OnKeyframe, &listener);
-  lcm.subscribe(channels.loop, &Listener::OnLoop, &listener);
-  lcm.subscribe(channels.correction, &Listener::OnCorrection, &listener);
-  lcm.subscribe(channels.verdicts, &Listener::OnVerdicts, &listener);
-  lcm.subscribe(channels.solution, &Listener::OnSolution, &listener);
-  lcm.subscribe(channels.status, &Listener::OnStatus, &listener);
+  // LCM drops what a subscription has queued beyond its capacity (default 30 messages).
+  constexpr int kLcmQueueCapacity = 100000;
+  for (lcm::Subscription* s :
+       {lcm.subscribe(channels.keyframe, &Listener::OnKeyframe, &listener),
+        lcm.subscribe(channels.loop, &Listener::OnLoop, &listener),
+        lcm.subscribe(channels.correction, &Listener::OnCorrection, &listener),
+        lcm.subscribe(channels.verdicts, &Listener::OnVerdicts, &listener),
+        lcm.subscribe(channels.solution, &Listener::OnSolution, &listener),
+        lcm.subscribe(channels.status, &Listener::OnStatus, &listener)}) {
+    s->setQueueCapacity(kLcmQueueCapacity);
+  }
 
   const bool tty = isatty(STDOUT_FILENO) != 0;
   using Clock = std::chrono::steady_clock;
@@ -455,21 +480,10 @@ int Run(const Arguments& args) {
   while (lcm.handleTimeout(0) > 0) {
   }
   fmt::print("{}{}\n", tty ? "\r" : "", listener.Summary());
-  std::vector<double> latencies = listener.latencies_ms();
-  if (!latencies.empty()) {
-    std::sort(latencies.begin(), latencies.end());
-    auto at = [&](double q) {
-      return latencies[std::min(latencies.size() - 1,
-                                static_cast<size_t>(std::ceil(q * latencies.size())) - 1)];
-    };
-    fmt::print(
-        "latency   step (cluster closed -> correction published) over {} steps: p50 {:.1f} "
-        "ms, p99 {:.1f} ms, max {:.1f} ms\n",
-        latencies.size(),
-        at(0.50),
-        at(0.99),
-        latencies.back());
-  }
+  PrintPercentiles("latency   step (cluster closed -> correction published)",
+                   listener.latencies_ms());
+  PrintPercentiles("decide    step (deciding and optimizing, without queueing)",
+                   listener.decide_ms());
   return WriteOutputs(args, listener);
 }
 

@@ -165,6 +165,10 @@ int Run(const Arguments& args, const CLI::App& app) {
       lcm.subscribe(channels.loop, &Receiver::OnMessage, &receiver),
       lcm.subscribe(channels.session, &Receiver::OnMessage, &receiver),
   };
+  // LCM drops what a subscription has queued beyond its capacity (default 30 messages) while
+  // handle() is not called; a burst of keyframes must wait here, not be lost.
+  constexpr int kLcmQueueCapacity = 100000;
+  for (lcm::Subscription* s : subscriptions) s->setQueueCapacity(kLcmQueueCapacity);
   spdlog::info(
       "{} listening on {} (inputs {}, {}, {}; corrections on {}, {}, {}; status {} at "
       "{} Hz; errors {})",

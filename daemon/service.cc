@@ -192,6 +192,7 @@ struct Engine {
   std::vector<int> anchor;            // by Irrr session: creation order of its map's first session
   std::map<int, Hypothesis> hypothesis_of_edge;
   std::map<int, LoopDecision> published;  // last decision published, by Irrr edge
+  std::set<int> dirty;                    // sessions re-estimated since the last full correction
 
   int64_t KeyOf(int session, int position) const { return sessions[session].first_key + position; }
 };
@@ -542,39 +543,34 @@ struct Service::State {
       const double decide_ms =
           std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
               .count();
-      PublishCorrection(engine, step, closed_utime, decide_ms);
+      PublishStep(engine, step, closed_utime, decide_ms);
     }
   }
 
+  // Fills `c` (transforms of `sessions`), `verdicts` and, when `full`, `chunks` (every pose of
+  // `sessions`) for one engine. Verdicts: those whose state, cluster or step changed since last
+  // published, or, when `full`, whose statistic changed too (accepted links are re-tested at
+  // every step, so their chi2 moves all the time; a full correction brings them up to date).
   template <class Pose>
-  void PublishCorrection(Engine<Pose>& engine,
-                         const StepResult& step,
-                         int64_t closed_utime,
-                         double decide_ms) {
+  void Describe(Engine<Pose>& engine,
+                const std::vector<int>& sessions,
+                bool full,
+                correction_t* c,
+                std::vector<verdicts_t>* verdicts,
+                std::vector<solution_t>* chunks,
+                int* state_changes) {
     const Irrr<Pose>& irrr = engine.irrr;
     const std::vector<Pose>& estimate = irrr.estimate();
     const std::vector<int> component_of = irrr.Components();
     // A component is named by the creation order of its earliest session.
     std::vector<int> component_name;
     for (size_t s = 0; s < component_of.size(); ++s) {
-      const int c = component_of[s];
-      if (c >= static_cast<int>(component_name.size())) component_name.resize(c + 1, -1);
-      if (component_name[c] < 0) component_name[c] = engine.sessions[s].order;
+      const int k = component_of[s];
+      if (k >= static_cast<int>(component_name.size())) component_name.resize(k + 1, -1);
+      if (component_name[k] < 0) component_name[k] = engine.sessions[s].order;
     }
-
-    correction_t correction{};
-    correction.solution_id = ++solution_id;
-    correction.daemon_start_utime = start_utime;
-    correction.step = step.step;
-    correction.cluster = step.cluster;
-    correction.closed_utime = closed_utime;
-    correction.solves = step.solves;
-    correction.chi2 = step.final_summary.final_chi2;
-
-    std::vector<solution_t> chunks;
-    for (int s : step.sessions) {
+    for (int s : sessions) {
       const auto& vertices = irrr.graph().session(s).vertices;
-      if (vertices.empty()) continue;
       const int component = component_name[component_of[s]];
       session_transform_t transform{};
       transform.robot_id = engine.sessions[s].name.first;
@@ -583,61 +579,45 @@ struct Service::State {
       const int last = vertices.back();
       transform.map_T_odom = PoseToWire(estimate[last] * engine.odom_pose[last].Inverse());
       transform.latest_key = engine.KeyOf(s, static_cast<int>(vertices.size()) - 1);
-      correction.sessions.push_back(transform);
-      for (size_t begin = 0; begin < vertices.size(); begin += solution_t::MAX_POSES) {
+      c->sessions.push_back(transform);
+      LogMembership(engine, s, component);
+      for (size_t begin = 0; full && begin < vertices.size(); begin += solution_t::MAX_POSES) {
         const size_t end = std::min(vertices.size(), begin + solution_t::MAX_POSES);
         solution_t chunk{};
-        chunk.solution_id = correction.solution_id;
-        chunk.chunk_index = static_cast<int32_t>(chunks.size());
+        chunk.solution_id = c->solution_id;
+        chunk.chunk_index = static_cast<int32_t>(chunks->size());
         chunk.robot_id = transform.robot_id;
         chunk.session_id = transform.session_id;
         chunk.component = component;
         chunk.first_key = engine.KeyOf(s, static_cast<int>(begin));
-        for (size_t k = begin; k < end; ++k)
+        for (size_t k = begin; k < end; ++k) {
           chunk.poses.push_back(PoseToWire(estimate[vertices[k]]));
+        }
         chunk.n_poses = static_cast<int32_t>(chunk.poses.size());
-        chunks.push_back(std::move(chunk));
+        chunks->push_back(std::move(chunk));
       }
     }
-    correction.n_sessions = static_cast<int32_t>(correction.sessions.size());
-    for (int s : step.sessions) {
-      const int anchor = component_name[component_of[s]];
-      if (anchor == engine.anchor[s]) continue;
-      const SessionName name = engine.sessions[s].name;
-      if (anchor == engine.sessions[s].order) {
-        spdlog::info(
-            "session (robot {}, session {}) split off into its own frame", name.first, name.second);
-      } else {
-        spdlog::info(
-            "session (robot {}, session {}) joined the map of session (robot {}, "
-            "session {})",
-            name.first,
-            name.second,
-            session_names[anchor].first,
-            session_names[anchor].second);
-      }
-      engine.anchor[s] = anchor;
-    }
+    c->n_sessions = static_cast<int32_t>(c->sessions.size());
 
-    std::vector<verdicts_t> verdict_chunks;
-    int64_t accepted = 0;
-    int64_t rejected = 0;
-    int state_changes = 0;  // verdicts also change when only their statistic does
+    Counts counts;
+    counts.components =
+        component_of.empty() ? 0 : *std::max_element(component_of.begin(), component_of.end()) + 1;
     for (const auto& [edge, h] : engine.hypothesis_of_edge) {
       const LoopDecision& d = irrr.decision(edge);
-      accepted += d.state == LoopState::kAccepted ? 1 : 0;
-      rejected += d.state != LoopState::kAccepted && d.state != LoopState::kPending ? 1 : 0;
+      counts.accepted += d.state == LoopState::kAccepted ? 1 : 0;
+      counts.rejected += d.state != LoopState::kAccepted && d.state != LoopState::kPending ? 1 : 0;
       auto it = engine.published.find(edge);
-      if (it != engine.published.end() && SameDecision(it->second, d)) continue;
-      const LoopState before =
-          it == engine.published.end() ? LoopState::kPending : it->second.state;
-      state_changes += d.state != before ? 1 : 0;
+      const bool known = it != engine.published.end();
+      const bool decision_changed = !known || it->second.state != d.state ||
+                                    it->second.cluster != d.cluster || it->second.step != d.step;
+      if (!decision_changed && !(full && !SameDecision(it->second, d))) continue;
+      *state_changes += !known || it->second.state != d.state ? 1 : 0;
       engine.published[edge] = d;
-      if (verdict_chunks.empty() || verdict_chunks.back().n_verdicts >= verdicts_t::MAX_VERDICTS) {
+      if (verdicts->empty() || verdicts->back().n_verdicts >= verdicts_t::MAX_VERDICTS) {
         verdicts_t chunk{};
-        chunk.solution_id = correction.solution_id;
-        chunk.chunk_index = static_cast<int32_t>(verdict_chunks.size());
-        verdict_chunks.push_back(std::move(chunk));
+        chunk.solution_id = c->solution_id;
+        chunk.chunk_index = static_cast<int32_t>(verdicts->size());
+        verdicts->push_back(std::move(chunk));
       }
       verdict_t v{};
       v.sender = h.sender;
@@ -653,42 +633,116 @@ struct Service::State {
       v.step = d.step;
       v.chi2 = d.chi2;
       v.threshold = d.threshold;
-      verdicts_t& chunk = verdict_chunks.back();
+      verdicts_t& chunk = verdicts->back();
       chunk.verdicts.push_back(std::move(v));
       chunk.n_verdicts = static_cast<int32_t>(chunk.verdicts.size());
     }
-    correction.n_verdict_chunks = static_cast<int32_t>(verdict_chunks.size());
-    correction.n_pose_chunks = static_cast<int32_t>(chunks.size());
+    std::lock_guard<std::mutex> lock(stats_mutex);
+    EngineCounts<Pose>() = counts;
+  }
 
-    correction.published_utime = NowUtime();
-    Publish(daemon.channels.correction, &correction);
-    for (verdicts_t& chunk : verdict_chunks) Publish(daemon.channels.verdicts, &chunk);
-    for (solution_t& chunk : chunks) Publish(daemon.channels.solution, &chunk);
+  // Logs a session joining another's map, or splitting off into its own frame.
+  template <class Pose>
+  void LogMembership(Engine<Pose>& engine, int s, int anchor) {
+    if (anchor == engine.anchor[s]) return;
+    const SessionName name = engine.sessions[s].name;
+    if (anchor == engine.sessions[s].order) {
+      spdlog::info(
+          "session (robot {}, session {}) split off into its own frame", name.first, name.second);
+    } else {
+      spdlog::info(
+          "session (robot {}, session {}) joined the map of session (robot {}, session {})",
+          name.first,
+          name.second,
+          session_names[anchor].first,
+          session_names[anchor].second);
+    }
+    engine.anchor[s] = anchor;
+  }
 
-    const double latency_ms = 1e-3 * static_cast<double>(correction.published_utime - closed_utime);
+  void PublishAll(correction_t* c,
+                  std::vector<verdicts_t>* verdicts,
+                  std::vector<solution_t>* chunks) {
+    c->n_verdict_chunks = static_cast<int32_t>(verdicts->size());
+    c->n_pose_chunks = static_cast<int32_t>(chunks->size());
+    c->published_utime = NowUtime();
+    Publish(daemon.channels.correction, c);
+    for (verdicts_t& chunk : *verdicts) Publish(daemon.channels.verdicts, &chunk);
+    for (solution_t& chunk : *chunks) Publish(daemon.channels.solution, &chunk);
+  }
+
+  // After each step: its decisions (state changes) and the new transforms of the sessions it
+  // touched. The poses follow in the next full correction (Refresh).
+  template <class Pose>
+  void PublishStep(Engine<Pose>& engine,
+                   const StepResult& step,
+                   int64_t closed_utime,
+                   double decide_ms) {
+    correction_t c{};
+    c.solution_id = ++solution_id;
+    c.daemon_start_utime = start_utime;
+    c.step = step.step;
+    c.cluster = step.cluster;
+    c.closed_utime = closed_utime;
+    c.solves = step.solves;
+    c.decide_ms = static_cast<float>(decide_ms);
+    c.chi2 = step.final_summary.final_chi2;
+    std::vector<verdicts_t> verdicts;
+    std::vector<solution_t> chunks;
+    int state_changes = 0;
+    Describe(engine, step.sessions, false, &c, &verdicts, &chunks, &state_changes);
+    engine.dirty.insert(step.sessions.begin(), step.sessions.end());
+    PublishAll(&c, &verdicts, &chunks);
+
+    const double latency_ms = 1e-3 * static_cast<double>(c.published_utime - closed_utime);
+    const Counts& counts = EngineCounts<Pose>();
     spdlog::info(
-        "step {} (cluster {}): {} decision(s) changed, {} accepted and {} rejected in "
-        "all; "
-        "{} session(s) re-estimated; decided in {:.1f} ms ({} solves), published {:.1f} "
-        "ms after the cluster closed",
+        "step {} (cluster {}): {} decision(s) changed, {} accepted and {} rejected in all; {} "
+        "session(s) re-estimated; decided in {:.1f} ms ({} solves), published {:.1f} ms after the "
+        "cluster closed",
         step.step,
         step.cluster,
         state_changes,
-        accepted,
-        rejected,
-        correction.n_sessions,
+        counts.accepted,
+        counts.rejected,
+        c.n_sessions,
         decide_ms,
         step.solves,
         latency_ms);
     std::lock_guard<std::mutex> lock(stats_mutex);
-    stats.solution_id = correction.solution_id;
+    stats.solution_id = c.solution_id;
     stats.last_step_latency_ms = static_cast<float>(latency_ms);
     ++stats.n_steps;
-    EngineCounts<Pose>() = {
-        accepted,
-        rejected,
-        component_of.empty() ? 0 : *std::max_element(component_of.begin(), component_of.end()) + 1};
   }
+
+  // A full correction (step -1): every pose of the sessions re-estimated since the last one, and
+  // every verdict brought up to date. Sent when the worker has caught up with its input, and at
+  // least every kRefreshPeriod while it is behind, so that a map is never older than that.
+  void Refresh() {
+    last_refresh = std::chrono::steady_clock::now();
+    if (se2.dirty.empty() && se3.dirty.empty()) return;
+    correction_t c{};
+    c.solution_id = ++solution_id;
+    c.daemon_start_utime = start_utime;
+    c.step = -1;
+    c.cluster = -1;
+    c.closed_utime = NowUtime();
+    std::vector<verdicts_t> verdicts;
+    std::vector<solution_t> chunks;
+    int state_changes = 0;
+    Describe(
+        se2, {se2.dirty.begin(), se2.dirty.end()}, true, &c, &verdicts, &chunks, &state_changes);
+    Describe(
+        se3, {se3.dirty.begin(), se3.dirty.end()}, true, &c, &verdicts, &chunks, &state_changes);
+    se2.dirty.clear();
+    se3.dirty.clear();
+    PublishAll(&c, &verdicts, &chunks);
+    std::lock_guard<std::mutex> lock(stats_mutex);
+    stats.solution_id = c.solution_id;
+  }
+
+  static constexpr std::chrono::milliseconds kRefreshPeriod{250};
+  std::chrono::steady_clock::time_point last_refresh = std::chrono::steady_clock::now();
 
   // Per engine: accepted, rejected, components (for status_t).
   struct Counts {
@@ -780,6 +834,10 @@ int Service::ProcessQueued(std::chrono::milliseconds wait) {
   for (const Input& input : batch) {
     st.Apply(input);
     --st.unapplied;
+    if (st.unapplied.load() == 0 ||
+        std::chrono::steady_clock::now() - st.last_refresh >= State::kRefreshPeriod) {
+      st.Refresh();
+    }
   }
   return static_cast<int>(batch.size());
 }
