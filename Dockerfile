@@ -3,7 +3,7 @@
 #
 #   docker build -t irrrd .
 #   docker run --rm --network host irrrd
-#   docker run --rm --network host -e LCM_DEFAULT_URL='udpm://239.255.76.67:7667?ttl=1' irrrd
+#   docker run --rm --network host -e LCM_DEFAULT_URL='udpm://239.255.76.67:7667?ttl=1&recv_buf_size=2097152' irrrd
 #   docker run --rm --network host -v "$PWD/my.json:/etc/irrrd/irrrd.json:ro" irrrd --log-level debug
 #
 # LCM's udpm:// transport is UDP multicast: use the host network (or a macvlan network) so that

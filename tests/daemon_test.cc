@@ -566,6 +566,7 @@ class Background {
       _exit(127);
     }
   }
+  void Signal(int signal) { kill(pid_, signal); }
   // Sends `signal` and returns the exit code.
   int Stop(int signal = SIGTERM) {
     if (pid_ <= 0) return -1;
@@ -639,6 +640,50 @@ void CheckSameAsBatch(const std::string& dir) {
                       YawDifference(v.estimate, want)});
   }
   CHECK(worst < 1e-6);
+}
+
+// Waits up to `seconds` for `text` in the file at `path`.
+bool WaitForText(const std::string& path, const std::string& text, double seconds) {
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
+  while (std::chrono::steady_clock::now() < deadline) {
+    if (ReadText(path).find(text) != std::string::npos) return true;
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+  return false;
+}
+
+TEST_CASE("irrrd: sysexits codes, SIGHUP reloads what can change live, SIGTERM exits 0",
+          "[daemon]") {
+  // memq:// keeps this test off every network.
+  const std::string dir = TestDirectory("daemon_signals");
+  const std::string log = dir + "/irrrd.log";
+  const std::string irrrd = std::string(IRRRD) + " --config ";
+  WriteText(dir + "/bad.json", R"({"daemon": {"status_hz": "often"}})");
+  CHECK(RunTool(irrrd + Quoted(dir + "/bad.json"), log) == 78);
+  CHECK_THAT(ReadText(log), Contains("daemon.status_hz: expected a number"));
+  CHECK(RunTool(irrrd + Quoted(dir + "/missing.json"), log) == 66);
+  CHECK(RunTool(std::string(IRRRD) + " --no-such-option", log) == 64);
+  CHECK(RunTool(std::string(IRRRD) + " --lcm-url 'bogus://x'", log) == 69);
+
+  const std::string config = dir + "/irrrd.json";
+  WriteText(config, R"({"daemon": {"lcm_url": "memq://", "log_level": "info"}})");
+  CHECK(RunTool(irrrd + Quoted(config) + " --print-config", log) == 0);
+  CHECK_THAT(ReadText(log), Contains("\"lcm_url\": \"memq://\""));
+
+  Background daemon(irrrd + Quoted(config), log);
+  REQUIRE(WaitForText(log, "listening on memq://", 10));
+  WriteText(config, R"({"daemon": {"lcm_url": "memq://", "log_level": "debug", "status_hz": 4}})");
+  daemon.Signal(SIGHUP);
+  CHECK(WaitForText(log, "SIGHUP: log_level info -> debug", 10));
+  CHECK(WaitForText(log, "SIGHUP: status_hz 1 -> 4", 10));
+  WriteText(config, R"({"daemon": {"lcm_url": "memq://", "daemon_id": "other"}})");
+  daemon.Signal(SIGHUP);
+  CHECK(WaitForText(log, "need a restart", 10));
+  WriteText(config, "{ not json");
+  daemon.Signal(SIGHUP);
+  CHECK(WaitForText(log, "configuration not reloaded, keeping the running one", 10));
+  CHECK(daemon.Stop(SIGTERM) == 0);
+  CHECK_THAT(ReadText(log), Contains("stopped: 0 keyframes"));
 }
 
 // LCM 1.3.1 keeps the kernel's default receive buffer (~208 kB) unless the URL asks for more.
