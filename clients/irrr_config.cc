@@ -363,6 +363,15 @@ Status ParseDaemonConfig(const nlohmann::json& config,
   return Status::Ok();
 }
 
+Status LoadDaemonConfig(const std::string& path, DaemonOptions* daemon, IrrrOptions* options) {
+  json config;
+  if (Status s = LoadConfigFile(path, &config); !s.ok()) return s;
+  if (Status s = ParseDaemonConfig(config, daemon, options); !s.ok()) {
+    return Status::Error(path + ": " + s.message());
+  }
+  return Status::Ok();
+}
+
 nlohmann::json DaemonOptionsToJson(const DaemonOptions& options) {
   json object = json::object();
   Writer writer(&object);

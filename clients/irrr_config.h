@@ -84,6 +84,9 @@ struct DaemonOptions {
 // their full path. Both outputs are untouched on failure.
 Status ParseDaemonConfig(const nlohmann::json& config, DaemonOptions* daemon, IrrrOptions* options);
 
+// LoadConfigFile, then ParseDaemonConfig; errors start with the path.
+Status LoadDaemonConfig(const std::string& path, DaemonOptions* daemon, IrrrOptions* options);
+
 // Every field of `options` under its JSON name (the inverse of ParseDaemonConfig's "daemon").
 nlohmann::json DaemonOptionsToJson(const DaemonOptions& options);
 

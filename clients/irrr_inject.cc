@@ -230,7 +230,9 @@ int Publish(const Arguments& args,
             return sent - watcher.received < args.window / 2 &&
                    watcher.queue_depth < args.window / 2;
           })) {
-        fmt::print(stderr, "\nirrr-inject: no status from the daemon for {} s\n", args.timeout_s);
+        fmt::print(stderr,
+                   "\nirrr-inject: the daemon did not catch up within --timeout {} s\n",
+                   args.timeout_s);
         return EX_UNAVAILABLE;
       }
       sent = watcher.received;  // what the daemon has is the baseline now
@@ -293,21 +295,15 @@ int Publish(const Arguments& args,
 }
 
 int Run(const Arguments& args) {
-  DaemonChannels channels;
+  DaemonOptions daemon;
+  IrrrOptions options;
   if (!args.config.empty()) {
-    nlohmann::json json;
-    DaemonOptions daemon;
-    IrrrOptions options;
-    if (Status s = LoadConfigFile(args.config, &json); !s.ok()) {
+    if (Status s = LoadDaemonConfig(args.config, &daemon, &options); !s.ok()) {
       fmt::print(stderr, "irrr-inject: {}\n", s.message());
       return EX_CONFIG;
     }
-    if (Status s = ParseDaemonConfig(json, &daemon, &options); !s.ok()) {
-      fmt::print(stderr, "irrr-inject: {}: {}\n", args.config, s.message());
-      return EX_CONFIG;
-    }
-    channels = daemon.channels;
   }
+  const DaemonChannels& channels = daemon.channels;
   std::vector<std::vector<ReplayMessage>> robots;
   for (size_t k = 0; k < args.inputs.size(); ++k) {
     const std::string& path = args.inputs[k];

@@ -406,19 +406,15 @@ int WriteOutputs(const Arguments& args, const Listener& listener) {
 }
 
 int Run(const Arguments& args) {
-  DaemonChannels channels;
+  DaemonOptions daemon;
+  IrrrOptions options;
   if (!args.config.empty()) {
-    nlohmann::json json;
-    DaemonOptions daemon;
-    IrrrOptions options;
-    Status s = LoadConfigFile(args.config, &json);
-    if (s.ok()) s = ParseDaemonConfig(json, &daemon, &options);
-    if (!s.ok()) {
-      fmt::print(stderr, "irrr-listen: {}: {}\n", args.config, s.message());
+    if (Status s = LoadDaemonConfig(args.config, &daemon, &options); !s.ok()) {
+      fmt::print(stderr, "irrr-listen: {}\n", s.message());
       return EX_CONFIG;
     }
-    channels = daemon.channels;
   }
+  const DaemonChannels& channels = daemon.channels;
   sigset_t signals;
   sigemptyset(&signals);
   sigaddset(&signals, SIGTERM);

@@ -82,14 +82,9 @@ int LoadConfiguration(const Arguments& args,
   DaemonOptions d;
   IrrrOptions o;
   if (!args.config.empty()) {
-    nlohmann::json json;
-    if (Status s = LoadConfigFile(args.config, &json); !s.ok()) {
+    if (Status s = LoadDaemonConfig(args.config, &d, &o); !s.ok()) {
       *error = s.message();
-      return access(args.config.c_str(), R_OK) == 0 ? EX_CONFIG : EX_NOINPUT;
-    }
-    if (Status s = ParseDaemonConfig(json, &d, &o); !s.ok()) {
-      *error = args.config + ": " + s.message();
-      return EX_CONFIG;
+      return access(args.config.c_str(), R_OK) != 0 ? EX_NOINPUT : EX_CONFIG;
     }
   }
   if (app.count("--lcm-url") > 0) d.lcm_url = args.lcm_url;
@@ -257,7 +252,7 @@ int Run(const Arguments& args, const CLI::App& app) {
   worker.join();
   const status_t status = service.CurrentStatus();
   spdlog::info(
-      "stopped: {} keyframes, {} loop hypotheses ({} accepted, {} rejected), {} steps, "
+      "stopped: {} keyframes, {} loop hypotheses ({} accepted, {} rejected or reversed), {} steps, "
       "{} component(s), {} input(s) rejected",
       status.n_keyframes,
       status.n_hypotheses,

@@ -51,11 +51,17 @@ struct Rejection {
   std::string reason;
 };
 
-Rejection RejectionOf(const std::string& channel, const keyframe_t& m) {
+template <class Message>
+Rejection RejectionFrom(const std::string& channel, const Message& m) {
   Rejection r;
   r.channel = channel;
   r.sender = m.header.sender;
   r.seq = m.header.seq;
+  return r;
+}
+
+Rejection RejectionOf(const std::string& channel, const keyframe_t& m) {
+  Rejection r = RejectionFrom(channel, m);
   r.robot_id = m.robot_id;
   r.session_id = m.session_id;
   r.key = m.key;
@@ -63,19 +69,13 @@ Rejection RejectionOf(const std::string& channel, const keyframe_t& m) {
 }
 
 Rejection RejectionOf(const std::string& channel, const loop_hypothesis_t& m) {
-  Rejection r;
-  r.channel = channel;
-  r.sender = m.header.sender;
-  r.seq = m.header.seq;
+  Rejection r = RejectionFrom(channel, m);
   r.hypothesis_id = m.hypothesis_id;
   return r;
 }
 
 Rejection RejectionOf(const std::string& channel, const session_event_t& m) {
-  Rejection r;
-  r.channel = channel;
-  r.sender = m.header.sender;
-  r.seq = m.header.seq;
+  Rejection r = RejectionFrom(channel, m);
   r.robot_id = m.robot_id;
   r.session_id = m.session_id;
   return r;
@@ -547,13 +547,13 @@ struct Service::State {
     }
   }
 
-  // Fills `c` (transforms of `sessions`), `verdicts` and, when `full`, `chunks` (every pose of
-  // `sessions`) for one engine. Verdicts: those whose state, cluster or step changed since last
+  // Fills `c` (transforms of `touched`), `verdicts` and, when `full`, `chunks` (every pose of
+  // `touched`) for one engine. Verdicts: those whose state, cluster or step changed since last
   // published, or, when `full`, whose statistic changed too (accepted links are re-tested at
   // every step, so their chi2 moves all the time; a full correction brings them up to date).
   template <class Pose>
   void Describe(Engine<Pose>& engine,
-                const std::vector<int>& sessions,
+                const std::vector<int>& touched,
                 bool full,
                 correction_t* c,
                 std::vector<verdicts_t>* verdicts,
@@ -569,7 +569,7 @@ struct Service::State {
       if (k >= static_cast<int>(component_name.size())) component_name.resize(k + 1, -1);
       if (component_name[k] < 0) component_name[k] = engine.sessions[s].order;
     }
-    for (int s : sessions) {
+    for (int s : touched) {
       const auto& vertices = irrr.graph().session(s).vertices;
       const int component = component_name[component_of[s]];
       session_transform_t transform{};
@@ -697,7 +697,8 @@ struct Service::State {
     const double latency_ms = 1e-3 * static_cast<double>(c.published_utime - closed_utime);
     const Counts& counts = EngineCounts<Pose>();
     spdlog::info(
-        "step {} (cluster {}): {} decision(s) changed, {} accepted and {} rejected in all; {} "
+        "step {} (cluster {}): {} decision(s) changed, {} accepted and {} rejected or reversed in "
+        "all; {} "
         "session(s) re-estimated; decided in {:.1f} ms ({} solves), published {:.1f} ms after the "
         "cluster closed",
         step.step,
