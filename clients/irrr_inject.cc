@@ -30,6 +30,7 @@
 #include "clients/graph_files.h"
 #include "clients/irrr_config.h"
 #include "clients/replay_messages.h"
+#include "daemon/raw_subscription.h"
 #include "daemon/wire.h"
 #include "irrr/status_t.hpp"
 
@@ -192,7 +193,11 @@ int Publish(const Arguments& args,
     return EX_UNAVAILABLE;
   }
   StatusWatcher watcher(args.sender);
-  lcm.subscribe(channels.status, &StatusWatcher::OnStatus, &watcher);
+  const RawSubscription status_subscription(
+      &lcm,
+      channels.status,
+      [&watcher](const lcm::ReceiveBuffer& b, const std::string& c) { watcher.OnStatus(&b, c); },
+      /*queue_capacity=*/100);
   using Clock = std::chrono::steady_clock;
   const auto start = Clock::now();
   const auto deadline = start + std::chrono::duration<double>(args.timeout_s);

@@ -30,6 +30,7 @@
 #include <fstream>
 #include <limits>
 #include <map>
+#include <memory>
 #include <set>
 #include <string>
 #include <vector>
@@ -41,6 +42,7 @@
 #include "clients/graph_files.h"
 #include "clients/irrr_config.h"
 #include "clients/loop_csv.h"
+#include "daemon/raw_subscription.h"
 #include "daemon/wire.h"
 #include "irrr/correction_t.hpp"
 #include "irrr/keyframe_t.hpp"
@@ -435,14 +437,24 @@ int Run(const Arguments& args) {
   Listener listener;
   // LCM drops what a subscription has queued beyond its capacity (default 30 messages).
   constexpr int kLcmQueueCapacity = 100000;
-  for (lcm::Subscription* s :
-       {lcm.subscribe(channels.keyframe, &Listener::OnKeyframe, &listener),
-        lcm.subscribe(channels.loop, &Listener::OnLoop, &listener),
-        lcm.subscribe(channels.correction, &Listener::OnCorrection, &listener),
-        lcm.subscribe(channels.verdicts, &Listener::OnVerdicts, &listener),
-        lcm.subscribe(channels.solution, &Listener::OnSolution, &listener),
-        lcm.subscribe(channels.status, &Listener::OnStatus, &listener)}) {
-    s->setQueueCapacity(kLcmQueueCapacity);
+  using Handler = void (Listener::*)(const lcm::ReceiveBuffer*, const std::string&);
+  const std::pair<std::string, Handler> handlers[] = {
+      {channels.keyframe, &Listener::OnKeyframe},
+      {channels.loop, &Listener::OnLoop},
+      {channels.correction, &Listener::OnCorrection},
+      {channels.verdicts, &Listener::OnVerdicts},
+      {channels.solution, &Listener::OnSolution},
+      {channels.status, &Listener::OnStatus},
+  };
+  std::vector<std::unique_ptr<RawSubscription>> subscriptions;
+  for (const auto& [channel, handler] : handlers) {
+    subscriptions.push_back(std::make_unique<RawSubscription>(
+        &lcm,
+        channel,
+        [&listener, handler = handler](const lcm::ReceiveBuffer& b, const std::string& c) {
+          (listener.*handler)(&b, c);
+        },
+        kLcmQueueCapacity));
   }
 
   const bool tty = isatty(STDOUT_FILENO) != 0;

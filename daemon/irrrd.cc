@@ -21,8 +21,10 @@
 #include <chrono>
 #include <csignal>
 #include <cstdio>
+#include <memory>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
@@ -30,6 +32,7 @@
 #include <lcm/lcm-cpp.hpp>
 
 #include "clients/irrr_config.h"
+#include "daemon/raw_subscription.h"
 #include "daemon/service.h"
 
 namespace irrr {
@@ -46,22 +49,6 @@ class LcmSink : public MessageSink {
 
  private:
   lcm::LCM* lcm_;
-};
-
-class Receiver {
- public:
-  explicit Receiver(Service* service) : service_(service) {}
-  void OnMessage(const lcm::ReceiveBuffer* buffer, const std::string& channel) {
-    if (service_->Receive(channel,
-                          static_cast<const uint8_t*>(buffer->data),
-                          static_cast<int>(buffer->data_size))) {
-      status_wanted = true;
-    }
-  }
-  bool status_wanted = false;
-
- private:
-  Service* service_;
 };
 
 struct Arguments {
@@ -153,17 +140,22 @@ int Run(const Arguments& args, const CLI::App& app) {
   }
   LcmSink sink(&lcm);
   Service service(daemon, options, &sink);
-  Receiver receiver(&service);
   const DaemonChannels& channels = daemon.channels;
-  lcm::Subscription* subscriptions[] = {
-      lcm.subscribe(channels.keyframe, &Receiver::OnMessage, &receiver),
-      lcm.subscribe(channels.loop, &Receiver::OnMessage, &receiver),
-      lcm.subscribe(channels.session, &Receiver::OnMessage, &receiver),
+  // Set by a session PROGRESS: publish a status now. Only the main thread touches it (handlers
+  // run in lcm.handle()).
+  bool status_wanted = false;
+  auto receive = [&](const lcm::ReceiveBuffer& buffer, const std::string& channel) {
+    status_wanted |= service.Receive(
+        channel, static_cast<const uint8_t*>(buffer.data), static_cast<int>(buffer.data_size));
   };
   // LCM drops what a subscription has queued beyond its capacity (default 30 messages) while
   // handle() is not called; a burst of keyframes must wait here, not be lost.
   constexpr int kLcmQueueCapacity = 100000;
-  for (lcm::Subscription* s : subscriptions) s->setQueueCapacity(kLcmQueueCapacity);
+  std::vector<std::unique_ptr<RawSubscription>> subscriptions;
+  for (const std::string& channel : {channels.keyframe, channels.loop, channels.session}) {
+    subscriptions.push_back(
+        std::make_unique<RawSubscription>(&lcm, channel, receive, kLcmQueueCapacity));
+  }
   spdlog::info(
       "{} listening on {} (inputs {}, {}, {}; corrections on {}, {}, {}; status {} at "
       "{} Hz; errors {})",
@@ -195,13 +187,13 @@ int Run(const Arguments& args, const CLI::App& app) {
   int exit_code = EX_OK;
   for (;;) {
     const auto now = Clock::now();
-    if (now >= next_status || (receiver.status_wanted && now - last_status >= kMinStatusGap)) {
+    if (now >= next_status || (status_wanted && now - last_status >= kMinStatusGap)) {
       service.PublishStatus(status_t::RUNNING);
-      receiver.status_wanted = false;
+      status_wanted = false;
       last_status = now;
       next_status = now + std::chrono::duration_cast<Clock::duration>(period);
     }
-    const auto until = receiver.status_wanted ? last_status + kMinStatusGap : next_status;
+    const auto until = status_wanted ? last_status + kMinStatusGap : next_status;
     const int timeout_ms = static_cast<int>(std::max<int64_t>(
         0,
         std::chrono::duration_cast<std::chrono::milliseconds>(until - Clock::now()).count() + 1));
@@ -246,7 +238,7 @@ int Run(const Arguments& args, const CLI::App& app) {
   // Take what is still in the socket, stop receiving, let the worker apply the queue.
   while (lcm.handleTimeout(0) > 0) {
   }
-  for (lcm::Subscription* s : subscriptions) lcm.unsubscribe(s);
+  subscriptions.clear();
   stopping = true;
   service.WakeWorker();
   worker.join();

@@ -12,6 +12,7 @@
 #include <functional>
 #include <limits>
 #include <map>
+#include <memory>
 #include <mutex>
 #include <string>
 #include <thread>
@@ -26,6 +27,7 @@
 #include "clients/loop_csv.h"
 #include "clients/replay_messages.h"
 #include "core/irrr.h"
+#include "daemon/raw_subscription.h"
 #include "daemon/service.h"
 #include "daemon/wire.h"
 #include "irrr/correction_t.hpp"
@@ -187,12 +189,19 @@ TEST_CASE("Over memq://, the service decides as RunIncrementalIrrr and merges th
   DaemonOptions daemon;
   Service service(daemon, options, &sink);
   ServiceReceiver receiver{&service, {}};
+  std::vector<std::unique_ptr<RawSubscription>> subscriptions;
   for (const std::string& channel : {daemon.channels.keyframe,
                                      daemon.channels.loop,
                                      daemon.channels.session,
                                      daemon.channels.correction,
                                      daemon.channels.error}) {
-    lcm.subscribe(channel, &ServiceReceiver::OnMessage, &receiver);
+    subscriptions.push_back(std::make_unique<RawSubscription>(
+        &lcm,
+        channel,
+        [&receiver](const lcm::ReceiveBuffer& b, const std::string& c) {
+          receiver.OnMessage(&b, c);
+        },
+        100000));
   }
   std::vector<ReplayMessage> messages = ReplayMessages(graph, graph_edge_of_file_edge, 0);
   messages.push_back(FlushMessage());
@@ -756,7 +765,11 @@ TEST_CASE("udpm: an LCM log written by irrr-inject and replayed by lcm-logplayer
       heard = status.decode(b->data, 0, static_cast<int>(b->data_size)) >= 0;
     }
   } watcher;
-  lcm.subscribe("IRRR_STATUS", &Watcher::On, &watcher);
+  const RawSubscription subscription(
+      &lcm,
+      "IRRR_STATUS",
+      [&watcher](const lcm::ReceiveBuffer& b, const std::string& c) { watcher.On(&b, c); },
+      100);
   const auto deadline = std::chrono::steady_clock::now() + std::chrono::minutes(5);
   int settled = 0;
   while (settled < 3 && std::chrono::steady_clock::now() < deadline) {
