@@ -19,6 +19,7 @@
 #include <chrono>
 #include <cstdio>
 #include <fstream>
+#include <map>
 #include <string>
 #include <thread>
 #include <vector>
@@ -51,47 +52,42 @@ struct Arguments {
   std::string config;
 };
 
-// The latest status_t of the daemon, as far as this sender is concerned.
+// The latest status_t of the daemon, and its counts for each of our senders.
 class StatusWatcher {
  public:
-  explicit StatusWatcher(std::string sender) : sender_(std::move(sender)) {}
   void OnStatus(const lcm::ReceiveBuffer* buffer, const std::string&) {
-    status_t status;
     if (status.decode(buffer->data, 0, static_cast<int>(buffer->data_size)) < 0) return;
     heard = true;
-    queue_depth = status.queue_depth;
-    solution_id = status.solution_id;
-    accepted = status.n_accepted;
-    rejected = status.n_rejected;
-    steps = status.n_steps;
-    components = status.n_components;
-    for (const sender_count_t& s : status.senders) {
-      if (s.sender == sender_) {
-        received = s.received;
-        errors = s.rejected;
-        last_seq_keyframe = s.last_seq_keyframe;
-        last_seq_loop = s.last_seq_loop;
-        last_seq_session = s.last_seq_session;
-        gaps = s.gaps;
-      }
-    }
+    for (const sender_count_t& s : status.senders) counts[s.sender] = s;
   }
-  bool heard = false;
-  int64_t received = 0;
-  int64_t errors = 0;
-  int64_t last_seq_keyframe = -1;
-  int64_t last_seq_loop = -1;
-  int64_t last_seq_session = -1;
-  int64_t gaps = 0;
-  int queue_depth = 0;
-  int64_t solution_id = 0;
-  int64_t accepted = 0;
-  int64_t rejected = 0;
-  int64_t steps = 0;
-  int components = 0;
+  // Sum of `field` over our senders.
+  int64_t Total(const SenderFleet& fleet, int64_t sender_count_t::*field) const {
+    int64_t total = 0;
+    for (const std::string& name : fleet.names()) {
+      const auto it = counts.find(name);
+      if (it != counts.end()) total += it->second.*field;
+    }
+    return total;
+  }
+  // Messages of ours the daemon has not seen: sequence gaps, plus the tail each channel's last
+  // seq falls short of ours by.
+  int64_t Missing(const SenderFleet& fleet) const {
+    int64_t missing = Total(fleet, &sender_count_t::gaps);
+    for (size_t k = 0; k < fleet.names().size(); ++k) {
+      const MessageSequencer& ours = fleet.sender(k);
+      sender_count_t seen{};
+      seen.last_seq_keyframe = seen.last_seq_loop = seen.last_seq_session = -1;
+      if (const auto it = counts.find(fleet.names()[k]); it != counts.end()) seen = it->second;
+      missing += std::max<int64_t>(0, ours.last_keyframe_seq() - seen.last_seq_keyframe) +
+                 std::max<int64_t>(0, ours.last_loop_seq() - seen.last_seq_loop) +
+                 std::max<int64_t>(0, ours.last_session_seq() - seen.last_seq_session);
+    }
+    return missing;
+  }
 
- private:
-  std::string sender_;
+  bool heard = false;
+  status_t status{};
+  std::map<std::string, sender_count_t> counts;
 };
 
 class ProgressBar {
@@ -151,7 +147,7 @@ int LoadMessages(const std::string& path,
 
 int WriteLog(const Arguments& args,
              const std::vector<ReplayMessage>& messages,
-             MessageSequencer* sequencer) {
+             SenderFleet* fleet) {
   lcm::LogFile log(args.lcmlog, "w");
   if (!log.good()) {
     fmt::print(stderr, "irrr-inject: {}: cannot create\n", args.lcmlog);
@@ -161,7 +157,7 @@ int WriteLog(const Arguments& args,
   const int64_t start = NowUtime();
   for (size_t k = 0; k < messages.size(); ++k) {
     const int64_t utime = start + static_cast<int64_t>(1e6 * k / rate);
-    auto [channel, bytes] = sequencer->Encode(messages[k], utime);
+    auto [channel, bytes] = fleet->Encode(messages[k], utime);
     lcm::LogEvent event{};
     event.timestamp = utime;
     event.channel = channel;
@@ -183,7 +179,7 @@ int WriteLog(const Arguments& args,
 int Publish(const Arguments& args,
             const DaemonChannels& channels,
             const std::vector<ReplayMessage>& messages,
-            MessageSequencer* sequencer) {
+            SenderFleet* fleet) {
   lcm::LCM lcm(args.lcm_url);
   if (!lcm.good()) {
     fmt::print(stderr,
@@ -192,7 +188,7 @@ int Publish(const Arguments& args,
                args.lcm_url);
     return EX_UNAVAILABLE;
   }
-  StatusWatcher watcher(args.sender);
+  StatusWatcher watcher;
   const RawSubscription status_subscription(
       &lcm,
       channels.status,
@@ -211,7 +207,7 @@ int Publish(const Arguments& args,
     while (!done()) {
       if (Clock::now() > deadline) return false;
       if (Clock::now() - asked > std::chrono::milliseconds(100)) {
-        send(sequencer->Progress(args.first_robot, 0, NowUtime()));
+        send(fleet->Progress(NowUtime()));
         asked = Clock::now();
       }
       lcm.handleTimeout(20);
@@ -227,24 +223,25 @@ int Publish(const Arguments& args,
       std::chrono::duration<double>(1.0 / (args.rate > 0 ? args.rate : kMaxRate)));
   auto next_send = start;
   int64_t sent = 0;
+  auto received = [&] { return watcher.Total(*fleet, &sender_count_t::received); };
   for (size_t k = 0; k < messages.size(); ++k) {
     if (args.rate == 0 &&
-        (sent - watcher.received >= args.window || watcher.queue_depth >= args.window)) {
+        (sent - received() >= args.window || watcher.status.queue_depth >= args.window)) {
       // The progress requests are messages too: they count in `received`.
       if (!wait_for([&] {
-            return sent - watcher.received < args.window / 2 &&
-                   watcher.queue_depth < args.window / 2;
+            return sent - received() < args.window / 2 &&
+                   watcher.status.queue_depth < args.window / 2;
           })) {
         fmt::print(stderr,
                    "\nirrr-inject: the daemon did not catch up within --timeout {} s\n",
                    args.timeout_s);
         return EX_UNAVAILABLE;
       }
-      sent = watcher.received;  // what the daemon has is the baseline now
+      sent = received();  // what the daemon has is the baseline now
     }
     next_send = std::max(next_send + spacing, args.rate > 0 ? next_send : Clock::now());
     std::this_thread::sleep_until(next_send);
-    send(sequencer->Encode(messages[k], NowUtime()));
+    send(fleet->Encode(messages[k], NowUtime()));
     ++sent;
     while (lcm.handleTimeout(0) > 0) {
     }
@@ -255,47 +252,38 @@ int Publish(const Arguments& args,
   // What the daemon received, by channel sequence numbers (the status is published by the thread
   // that receives, so its counts and queue depth agree). Lost messages never arrive: give up
   // after a few seconds and report them.
-  const int64_t last_keyframe = sequencer->last_keyframe_seq();
-  const int64_t last_loop = sequencer->last_loop_seq();
-  const int64_t last_session = sequencer->last_session_seq();
-  auto all_received = [&] {
-    return watcher.heard && watcher.last_seq_keyframe >= last_keyframe &&
-           watcher.last_seq_loop >= last_loop && watcher.last_seq_session >= last_session;
-  };
+  auto all_received = [&] { return watcher.heard && watcher.Missing(*fleet) == 0; };
   const auto receive_deadline = Clock::now() + std::chrono::seconds(3);
-  const bool received =
+  const bool all =
       wait_for([&] { return all_received() || Clock::now() > receive_deadline; }) && all_received();
-  // Messages missing in the middle show as sequence gaps; at the end, as a last seq short of ours.
-  const int64_t tail_lost = std::max<int64_t>(0, last_keyframe - watcher.last_seq_keyframe) +
-                            std::max<int64_t>(0, last_loop - watcher.last_seq_loop) +
-                            std::max<int64_t>(0, last_session - watcher.last_seq_session);
   fmt::print("sent      {} messages in {:.2f} s ({:.0f} per second); the daemon lost {}\n",
              messages.size(),
              send_s,
              messages.size() / std::max(send_s, 1e-9),
-             watcher.gaps + tail_lost);
-  if (!received) {
+             watcher.Missing(*fleet));
+  if (!all) {
     fmt::print(stderr, "irrr-inject: the daemon did not receive every message\n");
     return EX_UNAVAILABLE;
   }
   if (!args.wait) return EX_OK;
   // ... and applied.
-  const bool done = wait_for([&] { return all_received() && watcher.queue_depth == 0; });
+  const bool done = wait_for([&] { return all_received() && watcher.status.queue_depth == 0; });
   if (!done) {
     fmt::print(stderr, "irrr-inject: the daemon did not finish within {} s\n", args.timeout_s);
     return EX_UNAVAILABLE;
   }
+  const status_t& st = watcher.status;
   fmt::print(
-      "daemon    received {} messages from {} ({} rejected), {} steps, {} loops accepted, "
-      "{} rejected, {} component(s), latest solution {}\n",
-      watcher.received,
-      args.sender,
-      watcher.errors,
-      watcher.steps,
-      watcher.accepted,
-      watcher.rejected,
-      watcher.components,
-      watcher.solution_id);
+      "daemon    received {} messages from {} sender(s) ({} rejected), {} steps, {} loops "
+      "accepted, {} rejected or reversed, {} component(s), latest solution {}\n",
+      received(),
+      fleet->names().size(),
+      watcher.Total(*fleet, &sender_count_t::rejected),
+      st.n_steps,
+      st.n_accepted,
+      st.n_rejected,
+      st.n_components,
+      st.solution_id);
   return EX_OK;
 }
 
@@ -331,9 +319,9 @@ int Run(const Arguments& args) {
   }
   std::vector<ReplayMessage> messages = MergeByStamp(robots);
   if (!args.no_flush) messages.push_back(FlushMessage());
-  MessageSequencer sequencer(args.sender, channels);
-  return args.lcmlog.empty() ? Publish(args, channels, messages, &sequencer)
-                             : WriteLog(args, messages, &sequencer);
+  SenderFleet fleet(args.sender, channels, args.first_robot, static_cast<int>(robots.size()));
+  return args.lcmlog.empty() ? Publish(args, channels, messages, &fleet)
+                             : WriteLog(args, messages, &fleet);
 }
 
 }  // namespace

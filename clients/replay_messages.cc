@@ -151,6 +151,33 @@ std::pair<std::string, std::vector<uint8_t>> MessageSequencer::Progress(int32_t 
   return Encode(m, utime);
 }
 
+SenderFleet::SenderFleet(const std::string& sender,
+                         const DaemonChannels& channels,
+                         int32_t first_robot,
+                         int num_robots)
+    : first_robot_(first_robot) {
+  for (int r = 0; r < num_robots; ++r) {
+    const std::string name =
+        num_robots == 1 ? sender : sender + "/robot" + std::to_string(first_robot + r);
+    senders_.emplace_back(name, channels);
+    names_.push_back(name);
+  }
+}
+
+std::pair<std::string, std::vector<uint8_t>> SenderFleet::Encode(const ReplayMessage& message,
+                                                                 int64_t utime) {
+  int32_t robot = message.session.robot_id;
+  if (message.kind == ReplayMessage::Kind::kKeyframe) robot = message.keyframe.robot_id;
+  if (message.kind == ReplayMessage::Kind::kLoop) robot = message.loop.robot_from;
+  const bool flush = message.kind == ReplayMessage::Kind::kSession &&
+                     message.session.event == session_event_t::FLUSH;
+  return senders_[flush ? 0 : robot - first_robot_].Encode(message, utime);
+}
+
+std::pair<std::string, std::vector<uint8_t>> SenderFleet::Progress(int64_t utime) {
+  return senders_[0].Progress(first_robot_, 0, utime);
+}
+
 template std::vector<ReplayMessage> ReplayMessages<Pose2>(const PoseGraph<Pose2>&,
                                                           const std::vector<int>&,
                                                           int32_t);

@@ -68,6 +68,27 @@ class MessageSequencer {
   int64_t next_session_seq_ = 0;
 };
 
+// One sender per robot, as a fleet's front ends would be: with one robot the sender is `sender`
+// as given, with several "<sender>/robot<R>" (hypothesis ids are unique per sender, and each
+// file numbers its own from 0). FLUSH and the progress requests go out as the first robot.
+class SenderFleet {
+ public:
+  SenderFleet(const std::string& sender,
+              const DaemonChannels& channels,
+              int32_t first_robot,
+              int num_robots);
+  // Encodes `message` as the sender of its robot.
+  std::pair<std::string, std::vector<uint8_t>> Encode(const ReplayMessage& message, int64_t utime);
+  std::pair<std::string, std::vector<uint8_t>> Progress(int64_t utime);
+  const std::vector<std::string>& names() const { return names_; }
+  const MessageSequencer& sender(size_t k) const { return senders_[k]; }
+
+ private:
+  int32_t first_robot_;
+  std::vector<MessageSequencer> senders_;
+  std::vector<std::string> names_;
+};
+
 }  // namespace irrr
 
 #endif  // IRRR_CLIENTS_REPLAY_MESSAGES_H_

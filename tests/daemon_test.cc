@@ -260,6 +260,90 @@ TEST_CASE("Over memq://, the service decides as RunIncrementalIrrr and merges th
   CHECK(worst < 1e-6);
 }
 
+TEST_CASE("Two files injected as two robots keep their keys apart and their own decisions",
+          "[daemon]") {
+  // Both files number their poses from 0: only (robot, session, key) tells them apart.
+  const std::string dir = TestDirectory("daemon_two_robots");
+  const int sizes[2] = {250, 300};
+  std::vector<std::vector<ReplayMessage>> robots;
+  std::vector<PoseGraph<Pose2>> graphs(2);
+  std::vector<std::vector<int>> graph_edge_of_file_edge(2);
+  const IrrrOptions options = TestOptions();
+  std::vector<std::vector<LoopDecision>> expected(2);
+  std::vector<std::vector<Pose2>> expected_estimate(2);
+  for (int r = 0; r < 2; ++r) {
+    const std::string path = dir + "/intel" + std::to_string(sizes[r]) + ".g2o";
+    WriteIntelPrefix(sizes[r], path);
+    GraphFile<Pose2> file;
+    REQUIRE(
+        LoadPoseGraph(
+            path, FileFormat::kG2o, ReadOptions(), &file, &graphs[r], &graph_edge_of_file_edge[r])
+            .ok());
+    expected[r] = RunIncrementalIrrr(graphs[r], options, &expected_estimate[r], nullptr);
+    robots.push_back(ReplayMessages(graphs[r], graph_edge_of_file_edge[r], /*robot_id=*/r));
+  }
+  std::vector<ReplayMessage> messages = MergeByStamp(robots);
+  REQUIRE(messages.size() == robots[0].size() + robots[1].size());
+  // Merged by stamp: robot 0's key k comes before robot 1's key k + 1.
+  CHECK(messages[0].keyframe.robot_id == 0);
+  CHECK(messages[1].keyframe.robot_id == 1);
+  messages.push_back(FlushMessage());
+
+  RecordingSink sink;
+  DaemonOptions daemon;
+  Service service(daemon, options, &sink);
+  SenderFleet fleet("inject", daemon.channels, /*first_robot=*/0, /*num_robots=*/2);
+  CHECK(fleet.names() == std::vector<std::string>{"inject/robot0", "inject/robot1"});
+  for (const ReplayMessage& m : messages) {
+    const auto [channel, bytes] = fleet.Encode(m, NowUtime());
+    service.Receive(channel, bytes.data(), static_cast<int>(bytes.size()));
+    service.ProcessQueued(std::chrono::milliseconds(0));
+  }
+  const status_t status = service.CurrentStatus();
+  const std::vector<error_t> errors = sink.Decoded<error_t>(daemon.channels.error);
+  INFO((errors.empty() ? std::string() : errors[0].field + ": " + errors[0].reason));
+  CHECK(status.n_errors == 0);
+  CHECK(status.n_sessions == 2);
+  CHECK(status.n_components == 2);  // no loop joins the robots
+  CHECK(status.n_keyframes == sizes[0] + sizes[1]);
+
+  // Decisions come back in arrival order; both robots' hypothesis ids are file edge indices,
+  // told apart by the robot of their ends.
+  std::vector<HypothesisDecision> decisions = service.Decisions();
+  int checked = 0;
+  size_t next[2] = {0, 0};
+  std::vector<std::vector<int>> loops_in_arrival_order(2);
+  for (const ReplayMessage& m : messages) {
+    if (m.kind == ReplayMessage::Kind::kLoop) {
+      loops_in_arrival_order[m.loop.robot_from].push_back(static_cast<int>(m.loop.hypothesis_id));
+    }
+  }
+  for (const ReplayMessage& m : messages) {
+    if (m.kind != ReplayMessage::Kind::kLoop) continue;
+    const int r = m.loop.robot_from;
+    const HypothesisDecision& d = decisions[checked];
+    REQUIRE(d.hypothesis_id == loops_in_arrival_order[r][next[r]++]);
+    const LoopDecision& want = expected[r][graph_edge_of_file_edge[r][d.hypothesis_id]];
+    INFO("robot " << r << ", hypothesis " << d.hypothesis_id);
+    CHECK(d.decision.state == want.state);
+    ++checked;
+  }
+  CHECK(checked == static_cast<int>(decisions.size()));
+
+  double worst = 0.0;
+  for (const Service::SessionEstimate& e : service.Estimates()) {
+    const int r = e.robot_id;
+    for (size_t k = 0; k < e.poses.size(); ++k) {
+      Pose2 got;
+      REQUIRE(PoseFromWire(e.poses[k], "pose", &got).ok());
+      const Pose2& want = expected_estimate[r][graphs[r].FindVertex(e.first_key + k)];
+      worst = std::max(
+          {worst, (got.translation() - want.translation()).norm(), YawDifference(got, want)});
+    }
+  }
+  CHECK(worst < 1e-6);
+}
+
 // ---- Bad input ----
 
 keyframe_t Keyframe(int32_t session, int64_t key) {
