@@ -61,6 +61,7 @@ void VisitFields(DaemonLimits& limits, Visitor& visit) {
   visit("max_sessions", limits.max_sessions);
   visit("max_keyframes", limits.max_keyframes);
   visit("max_hypotheses", limits.max_hypotheses);
+  visit("max_parked", limits.max_parked);
 }
 
 template <class Visitor>
@@ -331,10 +332,10 @@ Status DaemonOptions::Validate() const {
   VisitFields(copy, check_channel);
   if (!status.ok()) return status;
   if (limits.queue_limit < 1 || limits.max_message_bytes < 1024 || limits.max_sessions < 1 ||
-      limits.max_keyframes < 1 || limits.max_hypotheses < 0) {
+      limits.max_keyframes < 1 || limits.max_hypotheses < 0 || limits.max_parked < 0) {
     return Status::Error(
         "limits: queue_limit, max_sessions and max_keyframes must be >= 1, "
-        "max_message_bytes >= 1024, max_hypotheses >= 0");
+        "max_message_bytes >= 1024, max_hypotheses and max_parked >= 0");
   }
   return Status::Ok();
 }

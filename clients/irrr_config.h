@@ -64,6 +64,7 @@ struct DaemonLimits {
   int max_sessions = 1000;            // sessions over the daemon's life
   int64_t max_keyframes = 10000000;   // poses over all sessions
   int64_t max_hypotheses = 10000000;  // loop hypotheses over all sessions
+  int max_parked = 100000;            // inputs waiting for a keyframe that has not arrived
 };
 
 // The daemon's own settings (the "daemon" object of config/irrrd.json).

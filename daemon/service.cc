@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstring>
 #include <set>
+#include <tuple>
 #include <type_traits>
 #include <utility>
 
@@ -513,26 +514,115 @@ struct Service::State {
     return s.ok() ? s : Status::Error("event: " + s.message());
   }
 
+  // ---- Inputs that arrive before what they refer to ----
+
+  using KeyName = std::tuple<int32_t, int32_t, int64_t>;  // (robot, session, key)
+  std::map<KeyName, std::vector<Input>> parked;           // by the keyframe they wait for
+  int64_t num_parked = 0;
+
+  template <class Pose>
+  static int64_t LastKeyOf(const Engine<Pose>& engine, int session) {
+    const auto& vertices = engine.irrr.graph().session(session).vertices;
+    return engine.KeyOf(session, static_cast<int>(vertices.size()) - 1);
+  }
+
+  // The last key of a known session (false: no keyframe of it yet).
+  bool LastKey(int32_t robot, int32_t session, int64_t* last) const {
+    const auto it = sessions.find({robot, session});
+    if (it == sessions.end()) return false;
+    *last = it->second.dim == keyframe_t::DIM_SE2 ? LastKeyOf(se2, it->second.index)
+                                                  : LastKeyOf(se3, it->second.index);
+    return true;
+  }
+
+  // The keyframe `input` waits for: a keyframe beyond the next key of its session waits for the
+  // one before it, a loop for each of its ends.
+  bool Awaited(const Input& input, KeyName* awaited) const {
+    int64_t last = 0;
+    if (input.kind == Input::Kind::kKeyframe) {
+      const keyframe_t& m = input.keyframe;
+      if (!LastKey(m.robot_id, m.session_id, &last) || m.key <= last + 1) return false;
+      *awaited = {m.robot_id, m.session_id, m.key - 1};
+      return true;
+    }
+    if (input.kind != Input::Kind::kLoop) return false;
+    const loop_hypothesis_t& m = input.loop;
+    for (const KeyName& end : {KeyName{m.robot_from, m.session_from, m.key_from},
+                               KeyName{m.robot_to, m.session_to, m.key_to}}) {
+      if (!LastKey(std::get<0>(end), std::get<1>(end), &last) || std::get<2>(end) > last) {
+        *awaited = end;
+        return true;
+      }
+    }
+    return false;
+  }
+
+  void Park(const Input& input, const KeyName& awaited) {
+    if (num_parked >= daemon.limits.max_parked) {
+      Rejection r = input.kind == Input::Kind::kKeyframe
+                        ? RejectionOf(daemon.channels.keyframe, input.keyframe)
+                        : RejectionOf(daemon.channels.loop, input.loop);
+      r.reason = "it refers to a keyframe not received yet, and daemon.limits.max_parked (" +
+                 std::to_string(daemon.limits.max_parked) + ") inputs wait already: not applied";
+      Reject(r);
+      return;
+    }
+    spdlog::debug("parked an input until keyframe (robot {}, session {}, key {}) arrives",
+                  std::get<0>(awaited),
+                  std::get<1>(awaited),
+                  std::get<2>(awaited));
+    parked[awaited].push_back(input);
+    ++num_parked;
+    std::lock_guard<std::mutex> lock(stats_mutex);
+    stats.n_parked = static_cast<int32_t>(num_parked);
+  }
+
+  // Applies `input`, then, in their arrival order, the parked inputs each keyframe it brings
+  // releases; steps run after every input, as they would had everything arrived in order.
   void Apply(const Input& input) {
+    std::deque<Input> ready{input};
+    while (!ready.empty()) {
+      const Input next = std::move(ready.front());
+      ready.pop_front();
+      KeyName awaited;
+      if (Awaited(next, &awaited)) {
+        Park(next, awaited);
+        continue;
+      }
+      if (ApplyNow(next) && next.kind == Input::Kind::kKeyframe) {
+        const auto it =
+            parked.find({next.keyframe.robot_id, next.keyframe.session_id, next.keyframe.key});
+        if (it != parked.end()) {
+          num_parked -= static_cast<int64_t>(it->second.size());
+          ready.insert(ready.begin(), it->second.begin(), it->second.end());
+          parked.erase(it);
+          std::lock_guard<std::mutex> lock(stats_mutex);
+          stats.n_parked = static_cast<int32_t>(num_parked);
+        }
+      }
+      RunSteps(se2, next.received_utime);
+      RunSteps(se3, next.received_utime);
+    }
+  }
+
+  // Applies one input now; false if it was rejected.
+  bool ApplyNow(const Input& input) {
+    Status s = Status::Ok();
     switch (input.kind) {
       case Input::Kind::kKeyframe:
-        if (Status s = AddKeyframe(input.keyframe); !s.ok()) {
-          Reject(RejectionOf(daemon.channels.keyframe, input.keyframe), s);
-        }
+        s = AddKeyframe(input.keyframe);
+        if (!s.ok()) Reject(RejectionOf(daemon.channels.keyframe, input.keyframe), s);
         break;
       case Input::Kind::kLoop:
-        if (Status s = AddLoop(input.loop); !s.ok()) {
-          Reject(RejectionOf(daemon.channels.loop, input.loop), s);
-        }
+        s = AddLoop(input.loop);
+        if (!s.ok()) Reject(RejectionOf(daemon.channels.loop, input.loop), s);
         break;
       case Input::Kind::kSession:
-        if (Status s = ApplySessionEvent(input.session); !s.ok()) {
-          Reject(RejectionOf(daemon.channels.session, input.session), s);
-        }
+        s = ApplySessionEvent(input.session);
+        if (!s.ok()) Reject(RejectionOf(daemon.channels.session, input.session), s);
         break;
     }
-    RunSteps(se2, input.received_utime);
-    RunSteps(se3, input.received_utime);
+    return s.ok();
   }
 
   template <class Pose>
