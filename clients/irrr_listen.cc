@@ -48,7 +48,6 @@
 #include "irrr/keyframe_t.hpp"
 #include "irrr/loop_hypothesis_t.hpp"
 #include "irrr/solution_t.hpp"
-#include "irrr/status_t.hpp"
 #include "irrr/verdicts_t.hpp"
 
 namespace irrr {
@@ -115,12 +114,6 @@ class Listener {
     if (!Decode(b, &m)) return;
     pending_[m.solution_id].poses[m.chunk_index] = m;
     Complete(m.solution_id);
-  }
-  void OnStatus(const lcm::ReceiveBuffer* b, const std::string&) {
-    status_t m;
-    if (!Decode(b, &m)) return;
-    status_ = m;
-    have_status_ = true;
   }
 
   std::string Summary() const {
@@ -254,7 +247,6 @@ class Listener {
   int64_t latest_solution() const { return latest_solution_; }
   const std::vector<double>& latencies_ms() const { return latencies_ms_; }
   const std::vector<double>& decide_ms() const { return decide_ms_; }
-  bool have_status() const { return have_status_; }
 
  private:
   struct Pending {
@@ -325,8 +317,6 @@ class Listener {
   int incomplete_ = 0;
   std::vector<double> latencies_ms_;
   std::vector<double> decide_ms_;
-  status_t status_{};
-  bool have_status_ = false;
 };
 
 struct Arguments {
@@ -444,7 +434,6 @@ int Run(const Arguments& args) {
       {channels.correction, &Listener::OnCorrection},
       {channels.verdicts, &Listener::OnVerdicts},
       {channels.solution, &Listener::OnSolution},
-      {channels.status, &Listener::OnStatus},
   };
   std::vector<std::unique_ptr<RawSubscription>> subscriptions;
   for (const auto& [channel, handler] : handlers) {

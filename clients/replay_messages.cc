@@ -111,17 +111,6 @@ ReplayMessage FlushMessage() {
 MessageSequencer::MessageSequencer(std::string sender, DaemonChannels channels)
     : sender_(std::move(sender)), channels_(std::move(channels)) {}
 
-namespace {
-
-template <class Message>
-std::vector<uint8_t> EncodeMessage(const Message& message) {
-  std::vector<uint8_t> bytes(message.getEncodedSize());
-  message.encode(bytes.data(), 0, static_cast<int>(bytes.size()));
-  return bytes;
-}
-
-}  // namespace
-
 std::pair<std::string, std::vector<uint8_t>> MessageSequencer::Encode(ReplayMessage message,
                                                                       int64_t utime) {
   switch (message.kind) {

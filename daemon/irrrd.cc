@@ -184,7 +184,6 @@ int Run(const Arguments& args, const CLI::App& app) {
   auto next_status = Clock::now();
   auto last_status = Clock::now() - std::chrono::seconds(1);
   constexpr auto kMinStatusGap = std::chrono::milliseconds(20);
-  int exit_code = EX_OK;
   for (;;) {
     const auto now = Clock::now();
     if (now >= next_status || (status_wanted && now - last_status >= kMinStatusGap)) {
@@ -256,7 +255,7 @@ int Run(const Arguments& args, const CLI::App& app) {
   service.PublishStatus(status_t::STOPPING);
   spdlog::shutdown();
   close(signal_fd);
-  return exit_code;
+  return EX_OK;
 }
 
 }  // namespace

@@ -22,13 +22,6 @@ namespace {
 
 constexpr size_t kMaxSenderBytes = 64;
 
-template <class Message>
-std::vector<uint8_t> Encode(const Message& message) {
-  std::vector<uint8_t> bytes(message.getEncodedSize());
-  message.encode(bytes.data(), 0, static_cast<int>(bytes.size()));
-  return bytes;
-}
-
 // One input as received, checked field by field, waiting for the worker.
 struct Input {
   enum class Kind { kKeyframe, kLoop, kSession };
@@ -252,7 +245,7 @@ struct Service::State {
     message->header.utime = NowUtime();
     message->header.seq = next_seq[channel]++;
     message->header.sender = daemon.daemon_id;
-    sink->Send(channel, Encode(*message));
+    sink->Send(channel, EncodeMessage(*message));
   }
 
   sender_count_t& SenderLocked(const std::string& sender) {

@@ -49,6 +49,14 @@ int8_t LoopStateToWire(LoopState state);
 // Fails on an unknown constant.
 Status LoopStateFromWire(int8_t wire, LoopState* state);
 
+// The bytes of an LCM message, as publish() and LogFile take them.
+template <class Message>
+std::vector<uint8_t> EncodeMessage(const Message& message) {
+  std::vector<uint8_t> bytes(message.getEncodedSize());
+  message.encode(bytes.data(), 0, static_cast<int>(bytes.size()));
+  return bytes;
+}
+
 // Microseconds since the Unix epoch, now.
 int64_t NowUtime();
 

@@ -374,13 +374,6 @@ loop_hypothesis_t Loop(int64_t id, int64_t from, int64_t to) {
   return l;
 }
 
-template <class Message>
-std::vector<uint8_t> Bytes(const Message& m) {
-  std::vector<uint8_t> bytes(m.getEncodedSize());
-  m.encode(bytes.data(), 0, static_cast<int>(bytes.size()));
-  return bytes;
-}
-
 struct BadInput {
   const char* what;
   std::string channel;
@@ -403,27 +396,27 @@ TEST_CASE("Every kind of bad input is answered on the error channel and nothing 
   std::vector<std::pair<std::string, std::vector<uint8_t>>> valid;
   int valid_loops = 0;
   for (int64_t key = 0; key < 20; ++key) {
-    valid.emplace_back(ch.keyframe, Bytes(Keyframe(0, key)));
+    valid.emplace_back(ch.keyframe, EncodeMessage(Keyframe(0, key)));
     if (key >= 10 && key % 3 == 1) {
-      valid.emplace_back(ch.loop, Bytes(Loop(key, key - 2, key)));
+      valid.emplace_back(ch.loop, EncodeMessage(Loop(key, key - 2, key)));
       ++valid_loops;
     }
   }
   session_event_t end{};
   end.header = {0, 0, "robot"};
   end.event = session_event_t::END;
-  valid.emplace_back(ch.session, Bytes(end));
+  valid.emplace_back(ch.session, EncodeMessage(end));
 
   std::vector<BadInput> bad;
   auto keyframe = [&](const char* what, const char* field, auto edit) {
     keyframe_t k = Keyframe(0, 5);
     edit(k);
-    bad.push_back({what, ch.keyframe, Bytes(k), field});
+    bad.push_back({what, ch.keyframe, EncodeMessage(k), field});
   };
   auto loop = [&](const char* what, const char* field, auto edit) {
     loop_hypothesis_t l = Loop(100, 3, 5);
     edit(l);
-    bad.push_back({what, ch.loop, Bytes(l), field});
+    bad.push_back({what, ch.loop, EncodeMessage(l), field});
   };
   keyframe("NaN in the odometry", "odom_delta.t", [&](keyframe_t& k) { k.odom_delta.t[0] = nan; });
   keyframe("infinite pose", "odom_pose.t", [](keyframe_t& k) {
@@ -483,18 +476,18 @@ TEST_CASE("Every kind of bad input is answered on the error channel and nothing 
     session_event_t e{};
     e.header = {0, 1, "robot"};
     e.event = 9;
-    bad.push_back({"unknown session event", ch.session, Bytes(e), "event"});
+    bad.push_back({"unknown session event", ch.session, EncodeMessage(e), "event"});
     e.event = session_event_t::END;
     e.session_id = 77;
-    bad.push_back({"END of an unknown session", ch.session, Bytes(e), "session_id"});
+    bad.push_back({"END of an unknown session", ch.session, EncodeMessage(e), "session_id"});
   }
   {
     std::vector<uint8_t> garbage(64, 0xAB);
     bad.push_back({"garbage bytes", ch.keyframe, garbage, ""});
-    std::vector<uint8_t> truncated = Bytes(Keyframe(0, 5));
+    std::vector<uint8_t> truncated = EncodeMessage(Keyframe(0, 5));
     truncated.resize(truncated.size() / 2);
     bad.push_back({"truncated message", ch.loop, truncated, ""});
-    bad.push_back({"a keyframe on the loop channel", ch.loop, Bytes(Keyframe(0, 5)), ""});
+    bad.push_back({"a keyframe on the loop channel", ch.loop, EncodeMessage(Keyframe(0, 5)), ""});
     bad.push_back(
         {"message over max_message_bytes", ch.keyframe, std::vector<uint8_t>(5000, 0), ""});
   }
@@ -503,12 +496,12 @@ TEST_CASE("Every kind of bad input is answered on the error channel and nothing 
   std::vector<std::pair<std::string, std::vector<uint8_t>>> waiting;
   {
     keyframe_t gap = Keyframe(0, 40);
-    waiting.emplace_back(ch.keyframe, Bytes(gap));
+    waiting.emplace_back(ch.keyframe, EncodeMessage(gap));
     loop_hypothesis_t ahead = Loop(200, 3, 999);
-    waiting.emplace_back(ch.loop, Bytes(ahead));
+    waiting.emplace_back(ch.loop, EncodeMessage(ahead));
     loop_hypothesis_t elsewhere = Loop(201, 3, 5);
     elsewhere.session_from = 9;
-    waiting.emplace_back(ch.loop, Bytes(elsewhere));
+    waiting.emplace_back(ch.loop, EncodeMessage(elsewhere));
   }
 
   // The bad inputs go in between the valid ones, at the point where the state they test holds
@@ -573,18 +566,18 @@ TEST_CASE("Inputs that arrive before what they refer to wait for it, then apply 
       std::vector<uint8_t> bytes;
       std::string channel;
       if (kind == 0) {
-        bytes = Bytes(Keyframe(0, value));
+        bytes = EncodeMessage(Keyframe(0, value));
         channel = daemon.channels.keyframe;
       } else if (kind == 1) {
         loop_hypothesis_t l = Loop(7, 5, 12);
         l.measurement = PoseToWire(Pose2(7.05, 0.02, 0.01));  // a little noise: a real fit
-        bytes = Bytes(l);
+        bytes = EncodeMessage(l);
         channel = daemon.channels.loop;
       } else {
         session_event_t end{};
         end.header = {0, 0, "robot"};
         end.event = session_event_t::END;
-        bytes = Bytes(end);
+        bytes = EncodeMessage(end);
         channel = daemon.channels.session;
       }
       service.Receive(channel, bytes.data(), static_cast<int>(bytes.size()));
@@ -642,7 +635,7 @@ TEST_CASE("Waiting inputs are bounded by limits.max_parked", "[daemon]") {
   daemon.limits.max_parked = 2;
   Service service(daemon, IrrrOptions(), &sink);
   for (int64_t key : {0, 5, 6, 7}) {
-    const std::vector<uint8_t> bytes = Bytes(Keyframe(0, key));
+    const std::vector<uint8_t> bytes = EncodeMessage(Keyframe(0, key));
     service.Receive(daemon.channels.keyframe, bytes.data(), static_cast<int>(bytes.size()));
     service.ProcessQueued(std::chrono::milliseconds(0));
   }
@@ -659,7 +652,7 @@ TEST_CASE("A full input queue answers instead of growing", "[daemon]") {
   daemon.limits.queue_limit = 5;
   Service service(daemon, IrrrOptions(), &sink);
   for (int64_t key = 0; key < 8; ++key) {
-    const std::vector<uint8_t> bytes = Bytes(Keyframe(0, key));
+    const std::vector<uint8_t> bytes = EncodeMessage(Keyframe(0, key));
     service.Receive(daemon.channels.keyframe, bytes.data(), static_cast<int>(bytes.size()));
   }
   CHECK(service.QueueDepth() == 5);
@@ -683,18 +676,18 @@ TEST_CASE("Corrections carry map-to-odometry transforms and every pose in chunks
     keyframe_t k = Keyframe(4, key);
     k.robot_id = 2;
     k.odom_pose = PoseToWire(Pose2(10.0 + key, 5.0, 0.0));  // odometry frame: origin at (10, 5)
-    const std::vector<uint8_t> bytes = Bytes(k);
+    const std::vector<uint8_t> bytes = EncodeMessage(k);
     service.Receive(daemon.channels.keyframe, bytes.data(), static_cast<int>(bytes.size()));
   }
   loop_hypothesis_t l = Loop(1, 1990, 1995);
   l.robot_from = l.robot_to = 2;
   l.session_from = l.session_to = 4;
-  std::vector<uint8_t> bytes = Bytes(l);
+  std::vector<uint8_t> bytes = EncodeMessage(l);
   service.Receive(daemon.channels.loop, bytes.data(), static_cast<int>(bytes.size()));
   session_event_t flush{};
   flush.header = {0, 0, "robot"};
   flush.event = session_event_t::FLUSH;
-  bytes = Bytes(flush);
+  bytes = EncodeMessage(flush);
   service.Receive(daemon.channels.session, bytes.data(), static_cast<int>(bytes.size()));
   service.ProcessQueued(std::chrono::milliseconds(0));
 
@@ -732,7 +725,7 @@ TEST_CASE("Corrections carry map-to-odometry transforms and every pose in chunks
     CHECK(chunks[k].chunk_index == static_cast<int>(k));
     CHECK(chunks[k].solution_id == c.solution_id);
     CHECK(chunks[k].first_key == next_key);
-    CHECK(Bytes(chunks[k]).size() < 65000);  // one UDP datagram
+    CHECK(EncodeMessage(chunks[k]).size() < 65000);  // one UDP datagram
     for (int i = 0; i < chunks[k].n_poses; ++i) {
       CHECK(chunks[k].poses[i].t[0] == Approx(static_cast<double>(next_key + i)).margin(1e-6));
     }
