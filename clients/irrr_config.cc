@@ -52,6 +52,8 @@ void VisitFields(DaemonChannels& channels, Visitor& visit) {
   visit("solution", channels.solution);
   visit("status", channels.status);
   visit("error", channels.error);
+  visit("resync", channels.resync);
+  visit("solution_request", channels.solution_request);
 }
 
 template <class Visitor>
@@ -62,6 +64,19 @@ void VisitFields(DaemonLimits& limits, Visitor& visit) {
   visit("max_keyframes", limits.max_keyframes);
   visit("max_hypotheses", limits.max_hypotheses);
   visit("max_parked", limits.max_parked);
+  visit("max_held", limits.max_held);
+}
+
+template <class Visitor>
+void VisitFields(DaemonResync& resync, Visitor& visit) {
+  visit("interval_ms", resync.interval_ms);
+  visit("give_up_ms", resync.give_up_ms);
+}
+
+template <class Visitor>
+void VisitFields(DaemonJournal& journal, Visitor& visit) {
+  visit("path", journal.path);
+  visit("fsync", journal.fsync);
 }
 
 template <class Visitor>
@@ -72,6 +87,10 @@ void VisitFields(DaemonOptions& options, Visitor& visit) {
   visit("status_hz", options.status_hz);
   visit("channels", options.channels);
   visit("limits", options.limits);
+  visit("resync", options.resync);
+  visit("journal", options.journal);
+  visit("allowed_senders", options.allowed_senders);
+  visit("allowed_robots", options.allowed_robots);
 }
 
 template <class Enum>
@@ -81,6 +100,15 @@ const EnumNames<GraphDegreesOfFreedom>& NamesOf(GraphDegreesOfFreedom) {
   static const EnumNames<GraphDegreesOfFreedom> names = {
       {GraphDegreesOfFreedom::kResidualRows, "residual_rows"},
       {GraphDegreesOfFreedom::kExact, "exact"},
+  };
+  return names;
+}
+
+const EnumNames<JournalSyncPolicy>& NamesOf(JournalSyncPolicy) {
+  static const EnumNames<JournalSyncPolicy> names = {
+      {JournalSyncPolicy::kNever, "never"},
+      {JournalSyncPolicy::kBatch, "batch"},
+      {JournalSyncPolicy::kAlways, "always"},
   };
   return names;
 }
@@ -178,6 +206,33 @@ class Reader {
     value = v->get<std::string>();
   }
 
+  void operator()(const char* key, std::vector<std::string>& value) {
+    const json* v = Find(key);
+    if (v == nullptr) return;
+    std::vector<std::string> parsed;
+    if (!v->is_array()) return Fail(key, "expected an array of strings, got " + Quote(*v));
+    for (const json& item : *v) {
+      if (!item.is_string()) return Fail(key, "expected an array of strings, got " + Quote(*v));
+      parsed.push_back(item.get<std::string>());
+    }
+    value = std::move(parsed);
+  }
+
+  void operator()(const char* key, std::vector<int>& value) {
+    const json* v = Find(key);
+    if (v == nullptr) return;
+    std::vector<int> parsed;
+    if (!v->is_array()) return Fail(key, "expected an array of integers, got " + Quote(*v));
+    for (const json& item : *v) {
+      if (!item.is_number_integer() || item.get<int64_t>() < std::numeric_limits<int>::min() ||
+          item.get<int64_t>() > std::numeric_limits<int>::max()) {
+        return Fail(key, "expected an array of integers, got " + Quote(*v));
+      }
+      parsed.push_back(item.get<int>());
+    }
+    value = std::move(parsed);
+  }
+
   void operator()(const char* key, bool& value) {
     const json* v = Find(key);
     if (v == nullptr) return;
@@ -237,6 +292,9 @@ class Writer {
       for (const auto& [candidate, name] : NamesOf(T())) {
         if (candidate == value) (*object_)[key] = name;
       }
+    } else if constexpr (std::is_same_v<T, std::vector<std::string>> ||
+                         std::is_same_v<T, std::vector<int>>) {
+      (*object_)[key] = value;
     } else if constexpr (std::is_class_v<T> && !std::is_same_v<T, std::string>) {
       json nested = json::object();
       Writer writer(&nested);
@@ -332,10 +390,22 @@ Status DaemonOptions::Validate() const {
   VisitFields(copy, check_channel);
   if (!status.ok()) return status;
   if (limits.queue_limit < 1 || limits.max_message_bytes < 1024 || limits.max_sessions < 1 ||
-      limits.max_keyframes < 1 || limits.max_hypotheses < 0 || limits.max_parked < 0) {
+      limits.max_keyframes < 1 || limits.max_hypotheses < 0 || limits.max_parked < 0 ||
+      limits.max_held < 0) {
     return Status::Error(
         "limits: queue_limit, max_sessions and max_keyframes must be >= 1, "
-        "max_message_bytes >= 1024, max_hypotheses and max_parked >= 0");
+        "max_message_bytes >= 1024, max_hypotheses, max_parked and max_held >= 0");
+  }
+  if (resync.interval_ms < 1 || resync.give_up_ms < resync.interval_ms) {
+    return Status::Error("resync: interval_ms must be >= 1 and give_up_ms >= interval_ms");
+  }
+  for (const std::string& sender : allowed_senders) {
+    if (sender.empty() || sender.size() > 64) {
+      return Status::Error("allowed_senders: \"" + sender + "\" must have 1 to 64 characters");
+    }
+  }
+  for (int robot : allowed_robots) {
+    if (robot < 0) return Status::Error("allowed_robots: negative robot id " + std::to_string(robot));
   }
   return Status::Ok();
 }

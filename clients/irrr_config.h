@@ -16,6 +16,7 @@
 
 #include <cstdint>
 #include <string>
+#include <vector>
 
 #include <nlohmann/json.hpp>
 
@@ -55,6 +56,8 @@ struct DaemonChannels {
   std::string solution = "IRRR_SOLUTION";      // out: solution_t
   std::string status = "IRRR_STATUS";          // out: status_t
   std::string error = "IRRR_ERROR";            // out: error_t
+  std::string resync = "IRRR_RESYNC";          // out: resync_request_t (to producers)
+  std::string solution_request = "IRRR_SOLUTION_REQUEST";  // in: solution_request_t
 };
 
 // What the daemon accepts before it answers "limit reached" (the "daemon.limits" object).
@@ -65,6 +68,22 @@ struct DaemonLimits {
   int64_t max_keyframes = 10000000;   // poses over all sessions
   int64_t max_hypotheses = 10000000;  // loop hypotheses over all sessions
   int max_parked = 100000;            // inputs waiting for a keyframe that has not arrived
+  int max_held = 100000;              // inputs waiting for a lost earlier one of their sender
+};
+
+// Re-requesting what the network lost (the "daemon.resync" object).
+struct DaemonResync {
+  int interval_ms = 200;   // an open gap is re-requested this often
+  int give_up_ms = 10000;  // ... and skipped after this long without progress
+};
+
+// When journal appends reach the disk (see daemon/journal.h).
+enum class JournalSyncPolicy { kNever, kBatch, kAlways };
+
+// The journal of accepted inputs (the "daemon.journal" object).
+struct DaemonJournal {
+  std::string path;  // "" = no journal (a restart starts empty)
+  JournalSyncPolicy fsync = JournalSyncPolicy::kBatch;
 };
 
 // The daemon's own settings (the "daemon" object of config/irrrd.json).
@@ -75,6 +94,12 @@ struct DaemonOptions {
   double status_hz = 1.0;           // heartbeat rate, (0, 100]
   DaemonChannels channels;
   DaemonLimits limits;
+  DaemonResync resync;
+  DaemonJournal journal;
+  // Who may send input: header.sender names (a trailing '*' matches any suffix) and robot ids.
+  // Empty = everyone. Messages from others are counted (status_t.n_ignored) and ignored.
+  std::vector<std::string> allowed_senders;
+  std::vector<int> allowed_robots;
 
   Status Validate() const;
 };

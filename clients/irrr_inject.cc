@@ -19,6 +19,7 @@
 #include <chrono>
 #include <cstdio>
 #include <fstream>
+#include <functional>
 #include <map>
 #include <string>
 #include <thread>
@@ -33,6 +34,7 @@
 #include "clients/replay_messages.h"
 #include "daemon/raw_subscription.h"
 #include "daemon/wire.h"
+#include "irrr/resync_request_t.hpp"
 #include "irrr/status_t.hpp"
 
 namespace irrr {
@@ -69,18 +71,16 @@ class StatusWatcher {
     }
     return total;
   }
-  // Messages of ours the daemon has not seen: sequence gaps, plus the tail each channel's last
-  // seq falls short of ours by.
+  // The first seq of `sender` the daemon has not taken (0 if it has not heard of it).
+  int64_t NextSeq(const std::string& sender) const {
+    const auto it = counts.find(sender);
+    return it == counts.end() ? 0 : it->second.next_seq;
+  }
+  // Messages we sent that the daemon has not taken yet (lost, or on their way).
   int64_t Missing(const SenderFleet& fleet) const {
-    int64_t missing = Total(fleet, &sender_count_t::gaps);
+    int64_t missing = 0;
     for (size_t k = 0; k < fleet.names().size(); ++k) {
-      const MessageSequencer& ours = fleet.sender(k);
-      sender_count_t seen{};
-      seen.last_seq_keyframe = seen.last_seq_loop = seen.last_seq_session = -1;
-      if (const auto it = counts.find(fleet.names()[k]); it != counts.end()) seen = it->second;
-      missing += std::max<int64_t>(0, ours.last_keyframe_seq() - seen.last_seq_keyframe) +
-                 std::max<int64_t>(0, ours.last_loop_seq() - seen.last_seq_loop) +
-                 std::max<int64_t>(0, ours.last_session_seq() - seen.last_seq_session);
+      missing += std::max<int64_t>(0, fleet.sender(k).last_seq() + 1 - NextSeq(fleet.names()[k]));
     }
     return missing;
   }
@@ -88,6 +88,66 @@ class StatusWatcher {
   bool heard = false;
   status_t status{};
   std::map<std::string, sender_count_t> counts;
+};
+
+// Sends again what the daemon lost: the ranges it asks for (resync_request_t), and, when its
+// next_seq for one of our senders has not moved for kStall while we sent more (the last messages
+// were lost, or the daemon restarted), the next `window` messages from there.
+class Resender {
+ public:
+  using Send = std::function<void(const MessageSequencer::Encoded&)>;
+  Resender(const SenderFleet* fleet, int window, Send send)
+      : fleet_(fleet), window_(window), send_(std::move(send)) {}
+
+  void OnRequest(const lcm::ReceiveBuffer* buffer, const std::string&) {
+    resync_request_t request;
+    if (request.decode(buffer->data, 0, static_cast<int>(buffer->data_size)) < 0) return;
+    const MessageSequencer* sender = fleet_->Find(request.sender);
+    if (sender == nullptr) return;
+    ++requests;
+    // At most kMaxPerRequest at once: the daemon asks again for what stays missing.
+    constexpr int64_t kMaxPerRequest = 1000;
+    int64_t budget = kMaxPerRequest;
+    for (int32_t r = 0; r < request.n_ranges && budget > 0; ++r) {
+      const int64_t first = std::max<int64_t>(0, request.first_seq[r]);
+      const int64_t last = std::min(request.last_seq[r], sender->last_seq());
+      for (int64_t seq = first; seq <= last && budget > 0; ++seq, --budget) {
+        send_(sender->Sent(seq));
+        ++resent;
+      }
+    }
+  }
+
+  void ResendStalled(const StatusWatcher& watcher) {
+    using Clock = std::chrono::steady_clock;
+    constexpr auto kStall = std::chrono::milliseconds(500);
+    const auto now = Clock::now();
+    for (size_t k = 0; k < fleet_->names().size(); ++k) {
+      const MessageSequencer& sender = fleet_->sender(k);
+      const int64_t next = watcher.NextSeq(sender.name());
+      Progress& p = progress_[sender.name()];
+      if (next != p.next_seq) p = {next, now, now};
+      if (next > sender.last_seq() || now - p.moved < kStall || now - p.resent < kStall) continue;
+      const int64_t last = std::min(sender.last_seq(), next + window_ - 1);
+      for (int64_t seq = next; seq <= last; ++seq) send_(sender.Sent(seq));
+      resent += last - next + 1;
+      p.resent = now;
+    }
+  }
+
+  int64_t requests = 0;  // resync requests for our senders
+  int64_t resent = 0;    // messages sent again
+
+ private:
+  struct Progress {
+    int64_t next_seq = -1;
+    std::chrono::steady_clock::time_point moved{};
+    std::chrono::steady_clock::time_point resent{};
+  };
+  const SenderFleet* fleet_;
+  int window_;
+  Send send_;
+  std::map<std::string, Progress> progress_;
 };
 
 class ProgressBar {
@@ -194,14 +254,21 @@ int Publish(const Arguments& args,
       channels.status,
       [&watcher](const lcm::ReceiveBuffer& b, const std::string& c) { watcher.OnStatus(&b, c); },
       /*queue_capacity=*/100);
+  auto send = [&](const MessageSequencer::Encoded& encoded) {
+    lcm.publish(encoded.first, encoded.second.data(), static_cast<unsigned>(encoded.second.size()));
+  };
+  Resender resender(fleet, args.window, send);
+  const RawSubscription resync_subscription(
+      &lcm,
+      channels.resync,
+      [&resender](const lcm::ReceiveBuffer& b, const std::string& c) { resender.OnRequest(&b, c); },
+      /*queue_capacity=*/1000);
   using Clock = std::chrono::steady_clock;
   const auto start = Clock::now();
   const auto deadline = start + std::chrono::duration<double>(args.timeout_s);
   auto seconds = [&] { return std::chrono::duration<double>(Clock::now() - start).count(); };
-  auto send = [&](const std::pair<std::string, std::vector<uint8_t>>& encoded) {
-    lcm.publish(encoded.first, encoded.second.data(), static_cast<unsigned>(encoded.second.size()));
-  };
-  // Asks for a status and handles messages until `done` holds or the deadline passes.
+  // Asks for a status, handles messages and resends what stalls until `done` holds or the
+  // deadline passes.
   auto wait_for = [&](auto done) {
     auto asked = Clock::now() - std::chrono::seconds(1);
     while (!done()) {
@@ -211,6 +278,7 @@ int Publish(const Arguments& args,
         asked = Clock::now();
       }
       lcm.handleTimeout(20);
+      resender.ResendStalled(watcher);
     }
     return true;
   };
@@ -222,14 +290,11 @@ int Publish(const Arguments& args,
   const auto spacing = std::chrono::duration_cast<Clock::duration>(
       std::chrono::duration<double>(1.0 / (args.rate > 0 ? args.rate : kMaxRate)));
   auto next_send = start;
-  int64_t sent = 0;
-  auto received = [&] { return watcher.Total(*fleet, &sender_count_t::received); };
   for (size_t k = 0; k < messages.size(); ++k) {
-    if (args.rate == 0 &&
-        (sent - received() >= args.window || watcher.status.queue_depth >= args.window)) {
-      // The progress requests are messages too: they count in `received`.
+    if (args.rate == 0 && (watcher.Missing(*fleet) >= args.window ||
+                           watcher.status.queue_depth >= args.window)) {
       if (!wait_for([&] {
-            return sent - received() < args.window / 2 &&
+            return watcher.Missing(*fleet) < args.window / 2 &&
                    watcher.status.queue_depth < args.window / 2;
           })) {
         fmt::print(stderr,
@@ -237,48 +302,55 @@ int Publish(const Arguments& args,
                    args.timeout_s);
         return EX_UNAVAILABLE;
       }
-      sent = received();  // what the daemon has is the baseline now
     }
     next_send = std::max(next_send + spacing, args.rate > 0 ? next_send : Clock::now());
     std::this_thread::sleep_until(next_send);
     send(fleet->Encode(messages[k], NowUtime()));
-    ++sent;
     while (lcm.handleTimeout(0) > 0) {
     }
     bar.Show(k + 1, seconds());
   }
   bar.Show(messages.size(), seconds(), true);
   const double send_s = seconds();
-  // What the daemon received, by channel sequence numbers (the status is published by the thread
-  // that receives, so its counts and queue depth agree). Lost messages never arrive: give up
-  // after a few seconds and report them.
-  auto all_received = [&] { return watcher.heard && watcher.Missing(*fleet) == 0; };
-  const auto receive_deadline = Clock::now() + std::chrono::seconds(3);
-  const bool all =
-      wait_for([&] { return all_received() || Clock::now() > receive_deadline; }) && all_received();
-  fmt::print("sent      {} messages in {:.2f} s ({:.0f} per second); the daemon lost {}\n",
-             messages.size(),
-             send_s,
-             messages.size() / std::max(send_s, 1e-9),
-             watcher.Missing(*fleet));
+  // Until the daemon has taken everything (what it lost is resent). A daemon never heard from
+  // within a few seconds is not there.
+  const auto silent_deadline = Clock::now() + std::chrono::seconds(3);
+  const bool all = wait_for([&] {
+    return (watcher.heard && watcher.Missing(*fleet) == 0) ||
+           (!watcher.heard && Clock::now() > silent_deadline);
+  }) && watcher.heard;
+  fmt::print(
+      "sent      {} messages in {:.2f} s ({:.0f} per second); resent {} ({} requests from the "
+      "daemon); the daemon is missing {}\n",
+      messages.size(),
+      send_s,
+      messages.size() / std::max(send_s, 1e-9),
+      resender.resent,
+      resender.requests,
+      watcher.Missing(*fleet));
   if (!all) {
-    fmt::print(stderr, "irrr-inject: the daemon did not receive every message\n");
+    fmt::print(stderr,
+               "irrr-inject: {}\n",
+               watcher.heard ? "the daemon did not take every message"
+                             : "no status from the daemon (is irrrd running on this LCM URL?)");
     return EX_UNAVAILABLE;
   }
   if (!args.wait) return EX_OK;
   // ... and applied.
-  const bool done = wait_for([&] { return all_received() && watcher.status.queue_depth == 0; });
+  const bool done =
+      wait_for([&] { return watcher.Missing(*fleet) == 0 && watcher.status.queue_depth == 0; });
   if (!done) {
     fmt::print(stderr, "irrr-inject: the daemon did not finish within {} s\n", args.timeout_s);
     return EX_UNAVAILABLE;
   }
   const status_t& st = watcher.status;
   fmt::print(
-      "daemon    received {} messages from {} sender(s) ({} rejected), {} steps, {} loops "
-      "accepted, {} rejected or reversed, {} component(s), latest solution {}\n",
-      received(),
+      "daemon    took {} messages from {} sender(s) ({} rejected, {} duplicates ignored), {} "
+      "steps, {} loops accepted, {} rejected or reversed, {} component(s), latest solution {}\n",
+      watcher.Total(*fleet, &sender_count_t::next_seq),
       fleet->names().size(),
       watcher.Total(*fleet, &sender_count_t::rejected),
+      watcher.Total(*fleet, &sender_count_t::duplicates),
       st.n_steps,
       st.n_accepted,
       st.n_rejected,

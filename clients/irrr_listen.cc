@@ -7,8 +7,10 @@
 // per session, the newest estimate; keys that no solution has covered yet continue the latest
 // estimate along the odometry heard on the keyframe channel (as the daemon's own estimate
 // does). It also hears the keyframe and loop channels, for the map's edges. A live one-line
-// summary goes to the terminal. On SIGINT/SIGTERM, or after --idle-exit seconds without a
-// message, it writes:
+// summary goes to the terminal. It asks the daemon for its whole solution when it starts (a late
+// joiner) and again before writing (until one arrives whole, at most --final-wait seconds), so
+// that what it writes is the daemon's state even when packets were lost. On SIGINT/SIGTERM, or
+// after --idle-exit seconds without a message, it writes:
 //  - --output: the map as g2o (odometry and accepted loops as edges); vertex id = key, or
 //    robot_id * 1000000000 + key when keys repeat across robots;
 //  - --decisions: one row per hypothesis in irrr-batch's CSV format, ordered by (sender,
@@ -47,6 +49,7 @@
 #include "irrr/correction_t.hpp"
 #include "irrr/keyframe_t.hpp"
 #include "irrr/loop_hypothesis_t.hpp"
+#include "irrr/solution_request_t.hpp"
 #include "irrr/solution_t.hpp"
 #include "irrr/verdicts_t.hpp"
 
@@ -95,7 +98,16 @@ class Listener {
     correction_t m;
     if (!Decode(b, &m)) return;
     if (m.daemon_start_utime != daemon_start_utime_) {
-      if (daemon_start_utime_ != 0) fmt::print("\nirrr-listen: the daemon restarted\n");
+      if (daemon_start_utime_ != 0) {
+        fmt::print("\nirrr-listen: the daemon restarted\n");
+        // Its solution ids start again from 1: what we hold is older than anything new.
+        pending_.clear();
+        for (auto& [name, s] : sessions_) {
+          for (auto& [key, id] : s.estimate_solution) id = 0;
+        }
+        for (auto& [name, h] : hypotheses_) h.verdict_solution = 0;
+        latest_solution_ = 0;
+      }
       daemon_start_utime_ = m.daemon_start_utime;
     }
     Pending& p = pending_[m.solution_id];
@@ -245,6 +257,8 @@ class Listener {
   }
 
   int64_t latest_solution() const { return latest_solution_; }
+  // Complete solutions (every pose and verdict, the answer to a solution_request_t) assembled.
+  int complete_solutions() const { return complete_solutions_; }
   const std::vector<double>& latencies_ms() const { return latencies_ms_; }
   const std::vector<double>& decide_ms() const { return decide_ms_; }
 
@@ -292,6 +306,7 @@ class Listener {
       }
     }
     latest_solution_ = std::max(latest_solution_, id);
+    if (c.complete) ++complete_solutions_;
     if (c.step >= 0) {  // a step's correction (step -1: a full one, poses and statistics)
       latest_step_ = std::max(latest_step_, c.step);
       latest_latency_ms_ = 1e-3 * static_cast<double>(c.published_utime - c.closed_utime);
@@ -315,6 +330,7 @@ class Listener {
   int latest_step_ = -1;
   double latest_latency_ms_ = 0.0;
   int incomplete_ = 0;
+  int complete_solutions_ = 0;
   std::vector<double> latencies_ms_;
   std::vector<double> decide_ms_;
 };
@@ -324,6 +340,7 @@ struct Arguments {
   std::string output;
   std::string decisions;
   double idle_exit_s = 0.0;
+  double final_wait_s = 5.0;
   std::string config;
   std::string labels;
 };
@@ -446,6 +463,18 @@ int Run(const Arguments& args) {
         kLcmQueueCapacity));
   }
 
+  // The daemon's whole solution: asked for at start (it may have been running for a while) and
+  // before writing (packets may have been lost).
+  int64_t requests = 0;
+  auto request_solution = [&](const char* reason) {
+    solution_request_t request{};
+    request.header = {NowUtime(), requests++, "irrr-listen"};
+    request.reason = reason;
+    const std::vector<uint8_t> bytes = EncodeMessage(request);
+    lcm.publish(channels.solution_request, bytes.data(), static_cast<unsigned>(bytes.size()));
+  };
+  request_solution("irrr-listen started");
+
   const bool tty = isatty(STDOUT_FILENO) != 0;
   using Clock = std::chrono::steady_clock;
   auto last_message = Clock::now();
@@ -476,6 +505,25 @@ int Run(const Arguments& args) {
   }
   while (lcm.handleTimeout(0) > 0) {
   }
+  if (heard && args.final_wait_s > 0) {
+    // Ask again until a complete solution arrives (each try may lose a chunk).
+    const int before = listener.complete_solutions();
+    const auto give_up = Clock::now() + std::chrono::duration<double>(args.final_wait_s);
+    auto asked = Clock::now() - std::chrono::seconds(1);
+    while (listener.complete_solutions() == before && Clock::now() < give_up) {
+      if (Clock::now() - asked > std::chrono::milliseconds(300)) {
+        request_solution("irrr-listen writing its outputs");
+        asked = Clock::now();
+      }
+      lcm.handleTimeout(20);
+    }
+    if (listener.complete_solutions() == before) {
+      fmt::print(stderr,
+                 "\nirrr-listen: no complete solution from the daemon within {} s: writing what "
+                 "was heard\n",
+                 args.final_wait_s);
+    }
+  }
   fmt::print("{}{}\n", tty ? "\r" : "", listener.Summary());
   PrintPercentiles("latency   step (cluster closed -> correction published)",
                    listener.latencies_ms());
@@ -497,6 +545,12 @@ int main(int argc, char** argv) {
                  args.idle_exit_s,
                  "exit this many seconds after the last message (0: only on SIGINT/SIGTERM)")
       ->check(CLI::NonNegativeNumber);
+  app.add_option("--final-wait",
+                 args.final_wait_s,
+                 "before writing, ask the daemon for its whole solution and wait this many seconds "
+                 "for it (0: do not ask)")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
   app.add_option("--config", args.config, "the daemon's JSON configuration (for channel names)");
   app.add_option("--labels",
                  args.labels,

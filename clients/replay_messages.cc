@@ -111,25 +111,28 @@ ReplayMessage FlushMessage() {
 MessageSequencer::MessageSequencer(std::string sender, DaemonChannels channels)
     : sender_(std::move(sender)), channels_(std::move(channels)) {}
 
-std::pair<std::string, std::vector<uint8_t>> MessageSequencer::Encode(ReplayMessage message,
-                                                                      int64_t utime) {
+MessageSequencer::Encoded MessageSequencer::Encode(ReplayMessage message, int64_t utime) {
+  const int64_t seq = static_cast<int64_t>(history_.size());
   switch (message.kind) {
     case ReplayMessage::Kind::kKeyframe:
-      message.keyframe.header = {utime, next_keyframe_seq_++, sender_};
-      return {channels_.keyframe, EncodeMessage(message.keyframe)};
+      message.keyframe.header = {utime, seq, sender_};
+      history_.emplace_back(channels_.keyframe, EncodeMessage(message.keyframe));
+      break;
     case ReplayMessage::Kind::kLoop:
-      message.loop.header = {utime, next_loop_seq_++, sender_};
-      return {channels_.loop, EncodeMessage(message.loop)};
+      message.loop.header = {utime, seq, sender_};
+      history_.emplace_back(channels_.loop, EncodeMessage(message.loop));
+      break;
     case ReplayMessage::Kind::kSession:
+      message.session.header = {utime, seq, sender_};
+      history_.emplace_back(channels_.session, EncodeMessage(message.session));
       break;
   }
-  message.session.header = {utime, next_session_seq_++, sender_};
-  return {channels_.session, EncodeMessage(message.session)};
+  return history_.back();
 }
 
-std::pair<std::string, std::vector<uint8_t>> MessageSequencer::Progress(int32_t robot_id,
-                                                                        int32_t session_id,
-                                                                        int64_t utime) {
+MessageSequencer::Encoded MessageSequencer::Progress(int32_t robot_id,
+                                                    int32_t session_id,
+                                                    int64_t utime) {
   ReplayMessage m;
   m.kind = ReplayMessage::Kind::kSession;
   m.session.event = session_event_t::PROGRESS;
@@ -153,8 +156,7 @@ SenderFleet::SenderFleet(const std::string& sender,
   }
 }
 
-std::pair<std::string, std::vector<uint8_t>> SenderFleet::Encode(const ReplayMessage& message,
-                                                                 int64_t utime) {
+MessageSequencer::Encoded SenderFleet::Encode(const ReplayMessage& message, int64_t utime) {
   int32_t robot = message.session.robot_id;
   if (message.kind == ReplayMessage::Kind::kKeyframe) robot = message.keyframe.robot_id;
   if (message.kind == ReplayMessage::Kind::kLoop) robot = message.loop.robot_from;
@@ -163,8 +165,15 @@ std::pair<std::string, std::vector<uint8_t>> SenderFleet::Encode(const ReplayMes
   return senders_[flush ? 0 : robot - first_robot_].Encode(message, utime);
 }
 
-std::pair<std::string, std::vector<uint8_t>> SenderFleet::Progress(int64_t utime) {
+MessageSequencer::Encoded SenderFleet::Progress(int64_t utime) {
   return senders_[0].Progress(first_robot_, 0, utime);
+}
+
+const MessageSequencer* SenderFleet::Find(const std::string& name) const {
+  for (const MessageSequencer& s : senders_) {
+    if (s.name() == name) return &s;
+  }
+  return nullptr;
 }
 
 template std::vector<ReplayMessage> ReplayMessages<Pose2>(const PoseGraph<Pose2>&,

@@ -45,27 +45,27 @@ std::vector<ReplayMessage> MergeByStamp(const std::vector<std::vector<ReplayMess
 // A FLUSH session event.
 ReplayMessage FlushMessage();
 
-// Fills headers (sender, per-channel seq from 0, utime) and encodes, as one sender publishes.
+// Fills headers (sender, seq from 0 over all channels, utime) and encodes, as one sender
+// publishes, and keeps every message it encoded so that it can resend them (resync_request_t).
 class MessageSequencer {
  public:
+  using Encoded = std::pair<std::string, std::vector<uint8_t>>;  // channel, bytes
+
   MessageSequencer(std::string sender, DaemonChannels channels);
   // The channel and the encoded bytes of `message`, stamped with `utime`.
-  std::pair<std::string, std::vector<uint8_t>> Encode(ReplayMessage message, int64_t utime);
+  Encoded Encode(ReplayMessage message, int64_t utime);
   // A PROGRESS event for (robot, session) (asks the daemon for a status).
-  std::pair<std::string, std::vector<uint8_t>> Progress(int32_t robot_id,
-                                                        int32_t session_id,
-                                                        int64_t utime);
-  // The header.seq of the last message encoded on each channel (-1: none).
-  int64_t last_keyframe_seq() const { return next_keyframe_seq_ - 1; }
-  int64_t last_loop_seq() const { return next_loop_seq_ - 1; }
-  int64_t last_session_seq() const { return next_session_seq_ - 1; }
+  Encoded Progress(int32_t robot_id, int32_t session_id, int64_t utime);
+  // The message encoded with header.seq `seq` (which must be <= last_seq()), unchanged.
+  const Encoded& Sent(int64_t seq) const { return history_[static_cast<size_t>(seq)]; }
+  // The header.seq of the last message encoded (-1: none).
+  int64_t last_seq() const { return static_cast<int64_t>(history_.size()) - 1; }
+  const std::string& name() const { return sender_; }
 
  private:
   std::string sender_;
   DaemonChannels channels_;
-  int64_t next_keyframe_seq_ = 0;
-  int64_t next_loop_seq_ = 0;
-  int64_t next_session_seq_ = 0;
+  std::vector<Encoded> history_;
 };
 
 // One sender per robot, as a fleet's front ends would be: with one robot the sender is `sender`
@@ -78,10 +78,12 @@ class SenderFleet {
               int32_t first_robot,
               int num_robots);
   // Encodes `message` as the sender of its robot.
-  std::pair<std::string, std::vector<uint8_t>> Encode(const ReplayMessage& message, int64_t utime);
-  std::pair<std::string, std::vector<uint8_t>> Progress(int64_t utime);
+  MessageSequencer::Encoded Encode(const ReplayMessage& message, int64_t utime);
+  MessageSequencer::Encoded Progress(int64_t utime);
   const std::vector<std::string>& names() const { return names_; }
   const MessageSequencer& sender(size_t k) const { return senders_[k]; }
+  // The sender named `name` (null: not one of ours).
+  const MessageSequencer* Find(const std::string& name) const;
 
  private:
   int32_t first_robot_;

@@ -2,8 +2,12 @@
 // LCM, decides which loops to trust (iRRR) and publishes corrections, verdicts and a status
 // heartbeat (message types in lcmtypes/, behaviour in daemon/service.h).
 //
-//   irrrd [--config FILE] [--lcm-url URL] [--daemon-id ID] [--log-level LEVEL] [--print-config]
+//   irrrd [--config FILE] [--lcm-url URL] [--daemon-id ID] [--log-level LEVEL] [--journal FILE]
+//         [--print-config]
 //
+// With a journal (daemon.journal.path), every input taken is appended to it before it is applied,
+// and a start replays it first: after a crash, kill -9 included, the daemon has the state it had,
+// and producers resend what it lost meanwhile (IRRR_RESYNC).
 // Threads: the main thread receives (LCM and signals, through poll) and publishes the status; a
 // worker applies the inputs and runs the iRRR steps, so that receiving never waits for an
 // optimization. SIGTERM and SIGINT: stop receiving, apply what was received, publish a STOPPING
@@ -56,6 +60,7 @@ struct Arguments {
   std::string lcm_url;
   std::string daemon_id;
   std::string log_level;
+  std::string journal;
   bool print_config = false;
 };
 
@@ -77,6 +82,7 @@ int LoadConfiguration(const Arguments& args,
   if (app.count("--lcm-url") > 0) d.lcm_url = args.lcm_url;
   if (app.count("--daemon-id") > 0) d.daemon_id = args.daemon_id;
   if (app.count("--log-level") > 0) d.log_level = args.log_level;
+  if (app.count("--journal") > 0) d.journal.path = args.journal;
   if (Status s = d.Validate(); !s.ok()) {
     *error = "command line: " + s.message();
     return EX_USAGE;
@@ -141,6 +147,20 @@ int Run(const Arguments& args, const CLI::App& app) {
   LcmSink sink(&lcm);
   Service service(daemon, options, &sink);
   const DaemonChannels& channels = daemon.channels;
+  service.PublishStatus(status_t::STARTING);
+  // The journal: replay what it holds (the state before a crash or stop), then append to it.
+  Journal journal;
+  if (!daemon.journal.path.empty()) {
+    JournalRecovery recovery;
+    if (Status s = journal.Open(daemon.journal.path, daemon.journal.fsync, &recovery); !s.ok()) {
+      spdlog::critical("journal: {}", s.message());
+      return EX_IOERR;
+    }
+    if (!recovery.records.empty() || recovery.dropped_bytes > 0) {
+      service.Recover(recovery, daemon.journal.path);
+    }
+    service.SetJournal(&journal);
+  }
   // Set by a session PROGRESS: publish a status now. Only the main thread touches it (handlers
   // run in lcm.handle()).
   bool status_wanted = false;
@@ -152,13 +172,14 @@ int Run(const Arguments& args, const CLI::App& app) {
   // handle() is not called; a burst of keyframes must wait here, not be lost.
   constexpr int kLcmQueueCapacity = 100000;
   std::vector<std::unique_ptr<RawSubscription>> subscriptions;
-  for (const std::string& channel : {channels.keyframe, channels.loop, channels.session}) {
+  for (const std::string& channel :
+       {channels.keyframe, channels.loop, channels.session, channels.solution_request}) {
     subscriptions.push_back(
         std::make_unique<RawSubscription>(&lcm, channel, receive, kLcmQueueCapacity));
   }
   spdlog::info(
       "{} listening on {} (inputs {}, {}, {}; corrections on {}, {}, {}; status {} at "
-      "{} Hz; errors {})",
+      "{} Hz; errors {}; journal {})",
       daemon.daemon_id,
       daemon.lcm_url.empty() ? "LCM's default URL" : daemon.lcm_url,
       channels.keyframe,
@@ -169,8 +190,8 @@ int Run(const Arguments& args, const CLI::App& app) {
       channels.solution,
       channels.status,
       daemon.status_hz,
-      channels.error);
-  service.PublishStatus(status_t::STARTING);
+      channels.error,
+      daemon.journal.path.empty() ? "off" : daemon.journal.path);
 
   std::atomic<bool> stopping{false};
   std::thread worker([&] {
@@ -184,15 +205,23 @@ int Run(const Arguments& args, const CLI::App& app) {
   auto next_status = Clock::now();
   auto last_status = Clock::now() - std::chrono::seconds(1);
   constexpr auto kMinStatusGap = std::chrono::milliseconds(20);
+  // Re-requests of lost input (Service::Tick) are looked at this often.
+  constexpr auto kTickPeriod = std::chrono::milliseconds(20);
+  auto next_tick = Clock::now();
   for (;;) {
     const auto now = Clock::now();
+    if (now >= next_tick) {
+      service.Tick();
+      next_tick = now + kTickPeriod;
+    }
     if (now >= next_status || (status_wanted && now - last_status >= kMinStatusGap)) {
       service.PublishStatus(status_t::RUNNING);
       status_wanted = false;
       last_status = now;
       next_status = now + std::chrono::duration_cast<Clock::duration>(period);
     }
-    const auto until = status_wanted ? last_status + kMinStatusGap : next_status;
+    const auto until =
+        std::min(status_wanted ? last_status + kMinStatusGap : next_status, next_tick);
     const int timeout_ms = static_cast<int>(std::max<int64_t>(
         0,
         std::chrono::duration_cast<std::chrono::milliseconds>(until - Clock::now()).count() + 1));
@@ -268,10 +297,11 @@ int main(int argc, char** argv) {
   app.add_option("--lcm-url", args.lcm_url, "LCM URL, overriding daemon.lcm_url");
   app.add_option("--daemon-id", args.daemon_id, "sender name, overriding daemon.daemon_id");
   app.add_option("--log-level", args.log_level, "overriding daemon.log_level");
+  app.add_option("--journal", args.journal, "journal file, overriding daemon.journal.path");
   app.add_flag("--print-config", args.print_config, "print the effective configuration and exit");
   app.footer(
       "Exit codes: 0 stopped by SIGTERM/SIGINT, 64 usage, 66 configuration missing, 69 LCM "
-      "unavailable, 71 system error, 78 bad configuration.");
+      "unavailable, 71 system error, 74 journal unreadable, 78 bad configuration.");
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

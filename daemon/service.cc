@@ -9,11 +9,15 @@
 #include <type_traits>
 #include <utility>
 
+#include <fmt/core.h>
 #include <spdlog/spdlog.h>
 
+#include "daemon/sequencer.h"
 #include "daemon/wire.h"
 #include "irrr/correction_t.hpp"
 #include "irrr/error_t.hpp"
+#include "irrr/resync_request_t.hpp"
+#include "irrr/solution_request_t.hpp"
 #include "irrr/solution_t.hpp"
 #include "irrr/verdicts_t.hpp"
 
@@ -30,7 +34,63 @@ struct Input {
   loop_hypothesis_t loop{};
   session_event_t session{};
   int64_t received_utime = 0;
+  std::vector<uint8_t> bytes;  // as received (for the journal)
+
+  const header_t& header() const {
+    switch (kind) {
+      case Kind::kKeyframe:
+        return keyframe.header;
+      case Kind::kLoop:
+        return loop.header;
+      case Kind::kSession:
+        break;
+    }
+    return session.header;
+  }
 };
+
+JournalRecord::Kind JournalKind(Input::Kind kind) {
+  switch (kind) {
+    case Input::Kind::kKeyframe:
+      return JournalRecord::kKeyframe;
+    case Input::Kind::kLoop:
+      return JournalRecord::kLoop;
+    case Input::Kind::kSession:
+      break;
+  }
+  return JournalRecord::kSession;
+}
+
+// Decodes a message of `kind` into `input` (false: it does not decode). decode() checks the
+// fingerprint, the lengths and the array sizes.
+bool DecodeInput(JournalRecord::Kind kind, const uint8_t* data, int size, Input* input) {
+  auto decode = [&](auto* message) { return message->decode(data, 0, size) == size; };
+  switch (kind) {
+    case JournalRecord::kKeyframe:
+      input->kind = Input::Kind::kKeyframe;
+      return decode(&input->keyframe);
+    case JournalRecord::kLoop:
+      input->kind = Input::Kind::kLoop;
+      return decode(&input->loop);
+    case JournalRecord::kSession:
+      break;
+  }
+  input->kind = Input::Kind::kSession;
+  return decode(&input->session);
+}
+
+// Whether `sender` is on the allow-list (empty: everyone; a trailing '*' matches any suffix).
+bool SenderAllowed(const std::vector<std::string>& allowed, const std::string& sender) {
+  if (allowed.empty()) return true;
+  for (const std::string& pattern : allowed) {
+    if (pattern == sender) return true;
+    if (!pattern.empty() && pattern.back() == '*' &&
+        sender.compare(0, pattern.size() - 1, pattern, 0, pattern.size() - 1) == 0) {
+      return true;
+    }
+  }
+  return false;
+}
 
 // What an error_t says about the input it answers.
 struct Rejection {
@@ -73,6 +133,18 @@ Rejection RejectionOf(const std::string& channel, const session_event_t& m) {
   r.robot_id = m.robot_id;
   r.session_id = m.session_id;
   return r;
+}
+
+Rejection RejectionOfInput(const DaemonChannels& ch, const Input& input) {
+  switch (input.kind) {
+    case Input::Kind::kKeyframe:
+      return RejectionOf(ch.keyframe, input.keyframe);
+    case Input::Kind::kLoop:
+      return RejectionOf(ch.loop, input.loop);
+    case Input::Kind::kSession:
+      break;
+  }
+  return RejectionOf(ch.session, input.session);
 }
 
 // Field checks that need no state: (field, reason) of the first failure, or an empty field.
@@ -150,6 +222,35 @@ Status CheckFields(const session_event_t& m) {
   return Status::Ok();
 }
 
+Status CheckInputFields(const Input& input) {
+  switch (input.kind) {
+    case Input::Kind::kKeyframe:
+      return CheckFields(input.keyframe);
+    case Input::Kind::kLoop:
+      return CheckFields(input.loop);
+    case Input::Kind::kSession:
+      break;
+  }
+  return CheckFields(input.session);
+}
+
+// Whether every robot `input` names is on the allow-list (empty: every robot).
+bool RobotsAllowed(const std::vector<int>& allowed, const Input& input) {
+  if (allowed.empty()) return true;
+  auto ok = [&](int32_t robot) {
+    return std::find(allowed.begin(), allowed.end(), robot) != allowed.end();
+  };
+  switch (input.kind) {
+    case Input::Kind::kKeyframe:
+      return ok(input.keyframe.robot_id);
+    case Input::Kind::kLoop:
+      return ok(input.loop.robot_from) && ok(input.loop.robot_to);
+    case Input::Kind::kSession:
+      break;
+  }
+  return input.session.event == session_event_t::FLUSH || ok(input.session.robot_id);
+}
+
 bool SameDecision(const LoopDecision& a, const LoopDecision& b) {
   auto same = [](double x, double y) { return x == y || (std::isnan(x) && std::isnan(y)); };
   return a.state == b.state && a.cluster == b.cluster && a.step == b.step && same(a.chi2, b.chi2) &&
@@ -195,11 +296,28 @@ struct Engine {
 
 struct Service::State {
   State(const DaemonOptions& d, const IrrrOptions& o, MessageSink* s)
-      : daemon(d), options(o), sink(s), se2(o), se3(o), start_utime(NowUtime()) {}
+      : daemon(d),
+        options(o),
+        sink(s),
+        sequencer(SequencerLimits{d.limits.max_held,
+                                  std::chrono::milliseconds(d.resync.interval_ms),
+                                  std::chrono::milliseconds(d.resync.give_up_ms)}),
+        se2(o),
+        se3(o),
+        start_utime(NowUtime()) {}
 
   const DaemonOptions daemon;
   const IrrrOptions options;
   MessageSink* const sink;
+  Journal* journal = nullptr;
+  // While the journal is replayed at start: nothing is published, old errors are not logged again.
+  std::atomic<bool> replaying{false};
+
+  // Receiving thread: each sender's inputs back in its order, and the senders ignored.
+  mutable std::mutex sequencer_mutex;
+  Sequencer<Input> sequencer;
+  std::set<std::string> warned_senders;  // warned once about duplicates or the allow-list
+  std::atomic<bool> solution_requested{false};
 
   // Receiving thread -> worker.
   mutable std::mutex queue_mutex;
@@ -214,9 +332,9 @@ struct Service::State {
   status_t stats{};
   std::map<std::string, sender_count_t> senders;
 
-  // Outgoing sequence numbers, per channel.
+  // Outgoing sequence number (one counter over all channels, as header_t says).
   std::mutex publish_mutex;
-  std::map<std::string, int64_t> next_seq;
+  int64_t next_seq = 0;
 
   // Worker only.
   Engine<Pose2> se2;
@@ -241,9 +359,10 @@ struct Service::State {
 
   template <class Message>
   void Publish(const std::string& channel, Message* message) {
+    if (replaying) return;
     std::lock_guard<std::mutex> lock(publish_mutex);
     message->header.utime = NowUtime();
-    message->header.seq = next_seq[channel]++;
+    message->header.seq = next_seq++;
     message->header.sender = daemon.daemon_id;
     sink->Send(channel, EncodeMessage(*message));
   }
@@ -253,14 +372,14 @@ struct Service::State {
     if (it == senders.end()) {
       sender_count_t count{};
       count.sender = sender;
-      count.last_seq_keyframe = count.last_seq_loop = count.last_seq_session = -1;
+      count.last_seq = -1;
       it = senders.emplace(sender, count).first;
     }
     return it->second;
   }
 
   void Reject(const Rejection& r) {
-    spdlog::warn("rejected {} from \"{}\" (seq {}): {}: {}",
+    spdlog::log(replaying ? spdlog::level::debug : spdlog::level::warn,"rejected {} from \"{}\" (seq {}): {}: {}",
                  r.channel,
                  r.sender,
                  r.seq,
@@ -270,7 +389,9 @@ struct Service::State {
       std::lock_guard<std::mutex> lock(stats_mutex);
       ++stats.n_errors;
       stats.last_error = r.channel + ": " + (r.field.empty() ? "" : r.field + ": ") + r.reason;
-      if (!r.sender.empty()) ++SenderLocked(r.sender).rejected;
+      if (!r.sender.empty() && r.sender.size() <= kMaxSenderBytes) {
+        ++SenderLocked(r.sender).rejected;
+      }
     }
     error_t error{};
     error.daemon_id = daemon.daemon_id;
@@ -291,45 +412,131 @@ struct Service::State {
     Reject(r);
   }
 
-  // Receiving thread: the common part of every input message once decoded.
-  template <class Message>
-  bool Admit(const std::string& channel, const Message& m, int64_t sender_count_t::*last_seq) {
-    if (m.header.sender.empty() || m.header.sender.size() > kMaxSenderBytes) {
-      Rejection r = RejectionOf(channel, m);
+  // ---- Receiving thread ----
+
+  // A decoded input: who sent it, then its place in the sender's order (sequencer.h). Returns
+  // true if it asks for an immediate status (a session PROGRESS).
+  bool Admit(Input input) {
+    const Rejection about = RejectionOfInput(daemon.channels, input);
+    const std::string sender = input.header().sender;
+    if (sender.empty() || sender.size() > kMaxSenderBytes) {
+      Rejection r = about;
       r.field = "header.sender";
       r.reason = "must have 1 to " + std::to_string(kMaxSenderBytes) + " bytes";
       Reject(r);
       return false;
     }
-    {
-      std::lock_guard<std::mutex> lock(stats_mutex);
-      sender_count_t& count = SenderLocked(m.header.sender);
-      ++count.received;
-      int64_t& last = count.*last_seq;
-      if (last >= 0 && m.header.seq > last + 1) count.gaps += m.header.seq - last - 1;
-      last = std::max(last, m.header.seq);
-    }
-    if (Status s = CheckFields(m); !s.ok()) {
-      Reject(RejectionOf(channel, m), s);
+    if (!SenderAllowed(daemon.allowed_senders, sender)) {
+      Ignore(sender, "is not in daemon.allowed_senders");
       return false;
     }
-    return true;
+    const int64_t seq = input.header().seq;
+    const bool progress = input.kind == Input::Kind::kSession &&
+                          input.session.event == session_event_t::PROGRESS;
+    {
+      std::lock_guard<std::mutex> lock(stats_mutex);
+      ++SenderLocked(sender).received;
+    }
+    std::lock_guard<std::mutex> lock(sequencer_mutex);
+    const auto outcome = sequencer.Offer(
+        sender, seq, std::move(input), std::chrono::steady_clock::now(), [this](Input&& in) {
+          return Take(std::move(in));
+        });
+    if (outcome == Sequencer<Input>::Outcome::kDuplicate && warned_senders.insert(sender).second) {
+      spdlog::warn("\"{}\" sent seq {} again (a resend, or a producer that does not count "
+                   "header.seq from 0 up): duplicates are ignored",
+                   sender,
+                   seq);
+    }
+    if (outcome == Sequencer<Input>::Outcome::kHoldFull) {
+      Rejection r = about;
+      r.field = "header.seq";
+      r.reason = "an earlier message of this sender is missing and daemon.limits.max_held (" +
+                 std::to_string(daemon.limits.max_held) +
+                 ") inputs wait already: not taken, re-requested later";
+      Reject(r);
+    }
+    return progress;
   }
 
-  void Enqueue(Input input, const Rejection& if_full) {
+  // An input in its sender's order: checked, then queued for the worker. False (the sequencer
+  // waits for a resend) only when the queue is full.
+  bool Take(Input&& input) {
+    if (!RobotsAllowed(daemon.allowed_robots, input)) {
+      Ignore(input.header().sender, "names a robot not in daemon.allowed_robots");
+      return true;
+    }
+    if (Status s = CheckInputFields(input); !s.ok()) {
+      Reject(RejectionOfInput(daemon.channels, input), s);
+      return true;
+    }
     {
       std::lock_guard<std::mutex> lock(queue_mutex);
       if (unapplied.load() < daemon.limits.queue_limit) {
         ++unapplied;
         queue.push_back(std::move(input));
         queue_changed.notify_one();
-        return;
+        return true;
       }
     }
-    Rejection r = if_full;
+    Rejection r = RejectionOfInput(daemon.channels, input);
     r.reason = "input queue full (daemon.limits.queue_limit " +
-               std::to_string(daemon.limits.queue_limit) + "): not applied";
+               std::to_string(daemon.limits.queue_limit) + "): not taken, re-requested later";
     Reject(r);
+    return false;
+  }
+
+  void Ignore(const std::string& sender, const char* why) {
+    {
+      std::lock_guard<std::mutex> lock(stats_mutex);
+      ++stats.n_ignored;
+    }
+    std::lock_guard<std::mutex> lock(warned_mutex);
+    if (warned_ignored.size() < 1000 && warned_ignored.insert(sender).second) {
+      spdlog::warn("ignoring input from \"{}\": it {}", sender, why);
+    }
+  }
+  std::mutex warned_mutex;
+  std::set<std::string> warned_ignored;
+
+  // Re-requests open gaps and gives up on old ones (the receiving thread, every few ms).
+  void Tick() {
+    const auto now = std::chrono::steady_clock::now();
+    std::vector<Sequencer<Input>::Request> due;
+    std::vector<Sequencer<Input>::Request> skipped;
+    {
+      std::lock_guard<std::mutex> lock(sequencer_mutex);
+      due = sequencer.DueRequests(now);
+      skipped = sequencer.GiveUp(now, [this](Input&& in) { return Take(std::move(in)); });
+    }
+    for (const auto& request : due) {
+      resync_request_t r{};
+      r.daemon_id = daemon.daemon_id;
+      r.sender = request.sender;
+      for (const auto& [first, last] : request.ranges) {
+        if (r.first_seq.size() >= static_cast<size_t>(resync_request_t::MAX_RANGES)) break;
+        r.first_seq.push_back(first);
+        r.last_seq.push_back(last);
+      }
+      r.n_ranges = static_cast<int32_t>(r.first_seq.size());
+      spdlog::debug("asking \"{}\" to resend {} range(s) from seq {}",
+                    r.sender,
+                    r.n_ranges,
+                    r.first_seq.empty() ? -1 : r.first_seq[0]);
+      Publish(daemon.channels.resync, &r);
+    }
+    for (const auto& gap : skipped) {
+      Rejection r;
+      r.channel = daemon.channels.resync;
+      r.sender = gap.sender;
+      r.seq = gap.ranges[0].first;
+      r.field = "header.seq";
+      r.reason = "seq " + std::to_string(gap.ranges[0].first) + ".." +
+                 std::to_string(gap.ranges[0].second) + " never arrived within " +
+                 "daemon.resync.give_up_ms (" + std::to_string(daemon.resync.give_up_ms) +
+                 " ms): went on without them";
+      Reject(r);
+    }
   }
 
   // ---- Worker ----
@@ -630,18 +837,25 @@ struct Service::State {
     }
   }
 
-  // Fills `c` (transforms of `touched`), `verdicts` and, when `full`, `chunks` (every pose of
+  enum class Detail {
+    kStep,      // transforms of the sessions touched, decisions changed
+    kFull,      // + every pose of the sessions touched, every verdict whose statistic moved
+    kComplete,  // + every verdict (the answer to a solution_request_t)
+  };
+
+  // Fills `c` (transforms of `touched`), `verdicts` and, unless kStep, `chunks` (every pose of
   // `touched`) for one engine. Verdicts: those whose state, cluster or step changed since last
   // published, or, when `full`, whose statistic changed too (accepted links are re-tested at
   // every step, so their chi2 moves all the time; a full correction brings them up to date).
   template <class Pose>
   void Describe(Engine<Pose>& engine,
                 const std::vector<int>& touched,
-                bool full,
+                Detail detail,
                 correction_t* c,
                 std::vector<verdicts_t>* verdicts,
                 std::vector<solution_t>* chunks,
                 int* state_changes) {
+    const bool full = detail != Detail::kStep;
     const Irrr<Pose>& irrr = engine.irrr;
     const std::vector<Pose>& estimate = irrr.estimate();
     const std::vector<int> component_of = irrr.Components();
@@ -693,7 +907,10 @@ struct Service::State {
       const bool known = it != engine.published.end();
       const bool decision_changed = !known || it->second.state != d.state ||
                                     it->second.cluster != d.cluster || it->second.step != d.step;
-      if (!decision_changed && !(full && !SameDecision(it->second, d))) continue;
+      if (!decision_changed && !(full && !SameDecision(it->second, d)) &&
+          detail != Detail::kComplete) {
+        continue;
+      }
       *state_changes += !known || it->second.state != d.state ? 1 : 0;
       engine.published[edge] = d;
       if (verdicts->empty() || verdicts->back().n_verdicts >= verdicts_t::MAX_VERDICTS) {
@@ -773,13 +990,13 @@ struct Service::State {
     std::vector<verdicts_t> verdicts;
     std::vector<solution_t> chunks;
     int state_changes = 0;
-    Describe(engine, step.sessions, false, &c, &verdicts, &chunks, &state_changes);
+    Describe(engine, step.sessions, Detail::kStep, &c, &verdicts, &chunks, &state_changes);
     engine.dirty.insert(step.sessions.begin(), step.sessions.end());
     PublishAll(&c, &verdicts, &chunks);
 
     const double latency_ms = 1e-3 * static_cast<double>(c.published_utime - closed_utime);
     const Counts& counts = EngineCounts<Pose>();
-    spdlog::info(
+    spdlog::log(replaying ? spdlog::level::debug : spdlog::level::info,
         "step {} (cluster {}): {} decision(s) changed, {} accepted and {} rejected or reversed in "
         "all; {} "
         "session(s) re-estimated; decided in {:.1f} ms ({} solves), published {:.1f} ms after the "
@@ -814,16 +1031,55 @@ struct Service::State {
     std::vector<verdicts_t> verdicts;
     std::vector<solution_t> chunks;
     int state_changes = 0;
-    Describe(
-        se2, {se2.dirty.begin(), se2.dirty.end()}, true, &c, &verdicts, &chunks, &state_changes);
-    Describe(
-        se3, {se3.dirty.begin(), se3.dirty.end()}, true, &c, &verdicts, &chunks, &state_changes);
+    Describe(se2,
+             {se2.dirty.begin(), se2.dirty.end()},
+             Detail::kFull,
+             &c,
+             &verdicts,
+             &chunks,
+             &state_changes);
+    Describe(se3,
+             {se3.dirty.begin(), se3.dirty.end()},
+             Detail::kFull,
+             &c,
+             &verdicts,
+             &chunks,
+             &state_changes);
     se2.dirty.clear();
     se3.dirty.clear();
     PublishAll(&c, &verdicts, &chunks);
     std::lock_guard<std::mutex> lock(stats_mutex);
     stats.solution_id = c.solution_id;
   }
+
+  // A complete correction: every session's poses and every verdict (complete = 1), for a consumer
+  // that asked (solution_request_t) or after recovery from the journal.
+  void PublishComplete() {
+    correction_t c{};
+    c.solution_id = ++solution_id;
+    c.daemon_start_utime = start_utime;
+    c.step = -1;
+    c.cluster = -1;
+    c.closed_utime = NowUtime();
+    c.complete = 1;
+    std::vector<verdicts_t> verdicts;
+    std::vector<solution_t> chunks;
+    int state_changes = 0;
+    auto all = [](const auto& engine) {
+      std::vector<int> sessions(engine.sessions.size());
+      for (size_t k = 0; k < sessions.size(); ++k) sessions[k] = static_cast<int>(k);
+      return sessions;
+    };
+    Describe(se2, all(se2), Detail::kComplete, &c, &verdicts, &chunks, &state_changes);
+    Describe(se3, all(se3), Detail::kComplete, &c, &verdicts, &chunks, &state_changes);
+    se2.dirty.clear();
+    se3.dirty.clear();
+    PublishAll(&c, &verdicts, &chunks);
+    std::lock_guard<std::mutex> lock(stats_mutex);
+    stats.solution_id = c.solution_id;
+  }
+
+  std::string journal_error;  // the latest journal failure (stats_mutex)
 
   static constexpr std::chrono::milliseconds kRefreshPeriod{250};
   std::chrono::steady_clock::time_point last_refresh = std::chrono::steady_clock::now();
@@ -854,9 +1110,26 @@ Service::~Service() = default;
 bool Service::Receive(const std::string& channel, const uint8_t* data, int size) {
   State& st = *state_;
   const DaemonChannels& ch = st.daemon.channels;
-  Input input;
-  input.received_utime = NowUtime();
-  auto reject_undecodable = [&](const std::string& type, const std::string& why) {
+  if (channel == ch.solution_request) {
+    solution_request_t request;
+    if (request.decode(data, 0, size) != size) return false;
+    spdlog::debug("\"{}\" asks for the whole solution ({})", request.header.sender, request.reason);
+    st.solution_requested = true;
+    WakeWorker();
+    return false;
+  }
+  JournalRecord::Kind kind;
+  std::string type;
+  if (channel == ch.keyframe) {
+    kind = JournalRecord::kKeyframe, type = "keyframe_t";
+  } else if (channel == ch.loop) {
+    kind = JournalRecord::kLoop, type = "loop_hypothesis_t";
+  } else if (channel == ch.session) {
+    kind = JournalRecord::kSession, type = "session_event_t";
+  } else {
+    return false;
+  }
+  auto reject_undecodable = [&](const std::string& why) {
     {
       std::lock_guard<std::mutex> lock(st.stats_mutex);
       ++st.stats.n_undecodable;
@@ -867,43 +1140,70 @@ bool Service::Receive(const std::string& channel, const uint8_t* data, int size)
     st.Reject(r);
     return false;
   };
-  auto type_of = [&]() -> std::string {
-    if (channel == ch.keyframe) return "keyframe_t";
-    if (channel == ch.loop) return "loop_hypothesis_t";
-    return "session_event_t";
-  };
-  if (channel != ch.keyframe && channel != ch.loop && channel != ch.session) return false;
   if (size > st.daemon.limits.max_message_bytes) {
-    return reject_undecodable(type_of(),
-                              std::to_string(size) + " bytes, more than daemon.limits." +
-                                  "max_message_bytes (" +
-                                  std::to_string(st.daemon.limits.max_message_bytes) + ")");
+    return reject_undecodable(std::to_string(size) + " bytes, more than daemon.limits." +
+                              "max_message_bytes (" +
+                              std::to_string(st.daemon.limits.max_message_bytes) + ")");
   }
-  // decode() checks the fingerprint, the lengths and the array sizes; it returns < 0 on failure.
-  auto decode = [&](auto* message) { return message->decode(data, 0, size) == size; };
-  if (channel == ch.keyframe) {
-    if (!decode(&input.keyframe)) return reject_undecodable(type_of(), "cannot decode");
-    if (!st.Admit(channel, input.keyframe, &sender_count_t::last_seq_keyframe)) return false;
-    input.kind = Input::Kind::kKeyframe;
-    const Rejection if_full = RejectionOf(channel, input.keyframe);
-    st.Enqueue(std::move(input), if_full);
-    return false;
+  Input input;
+  if (!DecodeInput(kind, data, size, &input)) return reject_undecodable("cannot decode");
+  input.received_utime = NowUtime();
+  input.bytes.assign(data, data + size);
+  return st.Admit(std::move(input));
+}
+
+void Service::Tick() { state_->Tick(); }
+
+void Service::SetJournal(Journal* journal) { state_->journal = journal; }
+
+void Service::Recover(const JournalRecovery& recovery, const std::string& path) {
+  State& st = *state_;
+  const auto start = std::chrono::steady_clock::now();
+  st.replaying = true;
+  std::map<std::string, int64_t> next_seq;
+  int64_t applied = 0;
+  for (const JournalRecord& record : recovery.records) {
+    Input input;
+    if (!DecodeInput(
+            record.kind, record.bytes.data(), static_cast<int>(record.bytes.size()), &input)) {
+      spdlog::error("journal {}: record {} does not decode (skipped)", path, applied);
+      continue;
+    }
+    input.received_utime = record.received_utime;
+    int64_t& next = next_seq[input.header().sender];
+    next = std::max(next, input.header().seq + 1);
+    st.Apply(input);
+    ++applied;
   }
-  if (channel == ch.loop) {
-    if (!decode(&input.loop)) return reject_undecodable(type_of(), "cannot decode");
-    if (!st.Admit(channel, input.loop, &sender_count_t::last_seq_loop)) return false;
-    input.kind = Input::Kind::kLoop;
-    const Rejection if_full = RejectionOf(channel, input.loop);
-    st.Enqueue(std::move(input), if_full);
-    return false;
+  st.replaying = false;
+  {
+    std::lock_guard<std::mutex> lock(st.sequencer_mutex);
+    for (const auto& [sender, next] : next_seq) st.sequencer.Resume(sender, next);
   }
-  if (!decode(&input.session)) return reject_undecodable(type_of(), "cannot decode");
-  if (!st.Admit(channel, input.session, &sender_count_t::last_seq_session)) return false;
-  input.kind = Input::Kind::kSession;
-  const bool progress = input.session.event == session_event_t::PROGRESS;
-  const Rejection if_full = RejectionOf(channel, input.session);
-  st.Enqueue(std::move(input), if_full);
-  return progress;
+  const double seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  std::string text = "replayed " + std::to_string(applied) + " inputs from " + path + " in " +
+                     fmt::format("{:.2f}", seconds) + " s";
+  if (recovery.dropped_bytes > 0) {
+    text += "; dropped " + std::to_string(recovery.dropped_bytes) + " bytes at its end (" +
+            recovery.dropped_reason + ")";
+    spdlog::warn("journal {}: dropped {} bytes at offset {}: {} (a write torn by a crash)",
+                 path,
+                 recovery.dropped_bytes,
+                 recovery.valid_bytes,
+                 recovery.dropped_reason);
+  }
+  spdlog::info("journal {}: {}; {} steps, {} hypotheses",
+               path,
+               text,
+               st.stats.n_steps,
+               st.hypothesis_order.size());
+  {
+    std::lock_guard<std::mutex> lock(st.stats_mutex);
+    st.stats.n_recovered = applied;
+    st.stats.recovery = text;
+  }
+  st.PublishComplete();
 }
 
 int Service::ProcessQueued(std::chrono::milliseconds wait) {
@@ -915,6 +1215,18 @@ int Service::ProcessQueued(std::chrono::milliseconds wait) {
     st.wake = false;
     batch.swap(st.queue);
   }
+  if (st.journal != nullptr && !batch.empty()) {
+    std::vector<JournalRecord> records;
+    records.reserve(batch.size());
+    for (const Input& input : batch) {
+      records.push_back({JournalKind(input.kind), input.received_utime, input.bytes});
+    }
+    if (Status s = st.journal->Append(records); !s.ok()) {
+      spdlog::error("journal: {} (inputs are applied but not kept)", s.message());
+      std::lock_guard<std::mutex> lock(st.stats_mutex);
+      st.journal_error = s.message();
+    }
+  }
   for (const Input& input : batch) {
     st.Apply(input);
     --st.unapplied;
@@ -923,6 +1235,7 @@ int Service::ProcessQueued(std::chrono::milliseconds wait) {
       st.Refresh();
     }
   }
+  if (st.solution_requested.exchange(false)) st.PublishComplete();
   return static_cast<int>(batch.size());
 }
 
@@ -937,6 +1250,13 @@ int Service::QueueDepth() const { return state_->unapplied.load(); }
 status_t Service::CurrentStatus() const {
   const State& st = *state_;
   const int depth = QueueDepth();
+  std::map<std::string, StreamCounts> streams;
+  int64_t held = 0;
+  {
+    std::lock_guard<std::mutex> lock(st.sequencer_mutex);
+    streams = st.sequencer.Counts();
+    held = st.sequencer.total_held();
+  }
   std::lock_guard<std::mutex> lock(st.stats_mutex);
   status_t status = st.stats;
   status.daemon_id = st.daemon.daemon_id;
@@ -946,8 +1266,34 @@ status_t Service::CurrentStatus() const {
   status.n_accepted = st.counts_se2.accepted + st.counts_se3.accepted;
   status.n_rejected = st.counts_se2.rejected + st.counts_se3.rejected;
   status.n_components = st.counts_se2.components + st.counts_se3.components;
-  for (const auto& [name, count] : st.senders) status.senders.push_back(count);
+  for (const auto& [name, count] : st.senders) {
+    sender_count_t c = count;
+    if (const auto it = streams.find(name); it != streams.end()) {
+      const StreamCounts& s = it->second;
+      c.next_seq = s.next_seq;
+      c.last_seq = s.last_seq;
+      c.held = static_cast<int32_t>(s.held);
+      c.gaps = s.gaps;
+      c.requested = s.requested;
+      c.given_up = s.given_up;
+      c.duplicates = s.duplicates;
+    }
+    status.senders.push_back(c);
+  }
   status.n_senders = static_cast<int32_t>(status.senders.size());
+  // DEGRADED: a limit is reached (inputs are being refused) or the journal cannot be written.
+  std::vector<std::string> reasons;
+  const DaemonLimits& limits = st.daemon.limits;
+  if (depth >= limits.queue_limit * 9 / 10) reasons.push_back("queue at 90% of queue_limit");
+  if (status.n_sessions >= limits.max_sessions) reasons.push_back("max_sessions reached");
+  if (status.n_keyframes >= limits.max_keyframes) reasons.push_back("max_keyframes reached");
+  if (status.n_hypotheses >= limits.max_hypotheses) reasons.push_back("max_hypotheses reached");
+  if (status.n_parked >= limits.max_parked) reasons.push_back("max_parked reached");
+  if (held >= limits.max_held) reasons.push_back("max_held reached");
+  if (!st.journal_error.empty()) reasons.push_back("journal: " + st.journal_error);
+  for (const std::string& r : reasons) {
+    status.degraded_reason += (status.degraded_reason.empty() ? "" : "; ") + r;
+  }
   return status;
 }
 
@@ -955,7 +1301,7 @@ void Service::PublishStatus(int8_t state) {
   State& st = *state_;
   status_t status = CurrentStatus();
   status.state = state;
-  if (state == status_t::RUNNING && status.queue_depth >= st.daemon.limits.queue_limit * 9 / 10) {
+  if (state == status_t::RUNNING && !status.degraded_reason.empty()) {
     status.state = status_t::DEGRADED;
   }
   st.Publish(st.daemon.channels.status, &status);

@@ -3,7 +3,8 @@
 
 // The iRRR service: what irrrd does, without the process around it (LCM sockets, signals,
 // threads). Raw messages come in through Receive (the receiving thread: decode, check the fields,
-// queue; never waits for optimization); ProcessQueued (the worker thread) applies them in arrival
+// queue; never waits for optimization), each sender's in the order of its header.seq
+// (sequencer.h: lost ones re-requested, duplicates ignored); ProcessQueued (the worker thread) applies them in arrival
 // order to core's Irrr, one per pose type, runs the steps whose clusters closed, and publishes a
 // correction after each step. Everything it publishes goes to a MessageSink (LCM in the daemon, a
 // list in tests).
@@ -25,6 +26,7 @@
 
 #include "clients/irrr_config.h"
 #include "core/irrr.h"
+#include "daemon/journal.h"
 #include "irrr/keyframe_t.hpp"
 #include "irrr/loop_hypothesis_t.hpp"
 #include "irrr/session_event_t.hpp"
@@ -58,6 +60,17 @@ class Service {
   // (or answers an error). Returns true if the message asks for an immediate status (a session
   // PROGRESS).
   bool Receive(const std::string& channel, const uint8_t* data, int size);
+
+  // Receiving thread, every few milliseconds: re-requests what senders' sequence numbers show
+  // missing (resync_request_t, every resync.interval_ms) and gives up on gaps older than
+  // resync.give_up_ms.
+  void Tick();
+
+  // Before the threads start: appends every input to `journal` (not owned; null: none) before
+  // applying it, and replays what a journal held (Journal::Open) to rebuild the state it had,
+  // publishing nothing but one complete correction at the end; status_t.recovery says so.
+  void SetJournal(Journal* journal);
+  void Recover(const JournalRecovery& recovery, const std::string& path);
 
   // Worker thread. Waits up to `wait` for input, then applies everything queued, in arrival
   // order, running and publishing every step that becomes due. Returns the inputs applied.

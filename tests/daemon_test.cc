@@ -32,6 +32,7 @@
 #include "daemon/wire.h"
 #include "irrr/correction_t.hpp"
 #include "irrr/error_t.hpp"
+#include "irrr/resync_request_t.hpp"
 #include "irrr/solution_t.hpp"
 #include "irrr/verdicts_t.hpp"
 #include "tests/test_files.h"
@@ -138,23 +139,6 @@ struct ServiceReceiver {
     service->Receive(channel, static_cast<const uint8_t*>(b->data), static_cast<int>(b->data_size));
   }
 };
-
-// A two-session Intel prefix with grouped wrong inter-session loops, made by irrr-corrupt.
-std::string MakeTwoSessionIntel(const std::string& dir) {
-  const std::string clean = dir + "/intel400.g2o";
-  WriteIntelPrefix(400, clean);
-  const std::string corrupted = dir + "/intel400_2sessions.g2o";
-  const std::string log = dir + "/corrupt.log";
-  const std::string command = std::string(IRRR_CORRUPT) + " " + Quoted(clean) + " " +
-                              Quoted(corrupted) +
-                              " --split 200 --mode inter-session --count 30 --group-size 3 "
-                              "--seed 3 --labels " +
-                              Quoted(dir + "/labels.csv");
-  const int code = RunTool(command, log);
-  INFO(command << "\n" << ReadText(log));
-  REQUIRE(code == 0);
-  return corrupted;
-}
 
 IrrrOptions TestOptions() {
   IrrrOptions options;
@@ -374,10 +358,52 @@ loop_hypothesis_t Loop(int64_t id, int64_t from, int64_t to) {
   return l;
 }
 
+// Sends messages into a service as producers would: header.seq counts from 0 per sender, over
+// all its channels.
+class Producer {
+ public:
+  Producer(Service* service, DaemonChannels channels)
+      : service_(service), channels_(std::move(channels)) {}
+
+  template <class Message>
+  std::vector<uint8_t> Stamp(Message m) {
+    m.header.seq = next_[m.header.sender]++;
+    return EncodeMessage(m);
+  }
+  // Sends and, with `apply`, lets the worker apply it at once.
+  template <class Message>
+  void Send(const Message& m, bool apply = true) {
+    Raw(ChannelOf(m), Stamp(m), apply);
+  }
+  // Bytes as they are (not stamped).
+  void Raw(const std::string& channel, const std::vector<uint8_t>& bytes, bool apply = true) {
+    service_->Receive(channel, bytes.data(), static_cast<int>(bytes.size()));
+    if (apply) service_->ProcessQueued(std::chrono::milliseconds(0));
+  }
+  std::string ChannelOf(const keyframe_t&) const { return channels_.keyframe; }
+  std::string ChannelOf(const loop_hypothesis_t&) const { return channels_.loop; }
+  std::string ChannelOf(const session_event_t&) const { return channels_.session; }
+
+ private:
+  Service* service_;
+  DaemonChannels channels_;
+  std::map<std::string, int64_t> next_;
+};
+
+session_event_t SessionEvent(int8_t event, int32_t session = 0) {
+  session_event_t e{};
+  e.header = {0, 0, "robot"};
+  e.event = event;
+  e.session_id = session;
+  e.last_key = -1;
+  e.last_hypothesis_id = -1;
+  return e;
+}
+
 struct BadInput {
   const char* what;
   std::string channel;
-  std::vector<uint8_t> bytes;
+  std::function<void(Producer&)> send;
   const char* field;  // expected error_t.field
 };
 
@@ -392,31 +418,33 @@ TEST_CASE("Every kind of bad input is answered on the error channel and nothing 
   const DaemonChannels& ch = daemon.channels;
   const double nan = std::numeric_limits<double>::quiet_NaN();
 
+  Producer producer(&service, ch);
+
   // A valid session of 20 keys on a straight line, and four true loops (poses 2 apart).
-  std::vector<std::pair<std::string, std::vector<uint8_t>>> valid;
+  std::vector<std::function<void()>> valid;
   int valid_loops = 0;
   for (int64_t key = 0; key < 20; ++key) {
-    valid.emplace_back(ch.keyframe, EncodeMessage(Keyframe(0, key)));
+    valid.push_back([&producer, key] { producer.Send(Keyframe(0, key)); });
     if (key >= 10 && key % 3 == 1) {
-      valid.emplace_back(ch.loop, EncodeMessage(Loop(key, key - 2, key)));
+      valid.push_back([&producer, key] { producer.Send(Loop(key, key - 2, key)); });
       ++valid_loops;
     }
   }
-  session_event_t end{};
-  end.header = {0, 0, "robot"};
-  end.event = session_event_t::END;
-  valid.emplace_back(ch.session, EncodeMessage(end));
+  valid.push_back([&producer] { producer.Send(SessionEvent(session_event_t::END)); });
 
   std::vector<BadInput> bad;
   auto keyframe = [&](const char* what, const char* field, auto edit) {
     keyframe_t k = Keyframe(0, 5);
     edit(k);
-    bad.push_back({what, ch.keyframe, EncodeMessage(k), field});
+    bad.push_back({what, ch.keyframe, [k](Producer& p) { p.Send(k); }, field});
   };
   auto loop = [&](const char* what, const char* field, auto edit) {
     loop_hypothesis_t l = Loop(100, 3, 5);
     edit(l);
-    bad.push_back({what, ch.loop, EncodeMessage(l), field});
+    bad.push_back({what, ch.loop, [l](Producer& p) { p.Send(l); }, field});
+  };
+  auto raw = [&](const char* what, const std::string& channel, std::vector<uint8_t> bytes) {
+    bad.push_back({what, channel, [channel, bytes](Producer& p) { p.Raw(channel, bytes); }, ""});
   };
   keyframe("NaN in the odometry", "odom_delta.t", [&](keyframe_t& k) { k.odom_delta.t[0] = nan; });
   keyframe("infinite pose", "odom_pose.t", [](keyframe_t& k) {
@@ -445,7 +473,15 @@ TEST_CASE("Every kind of bad input is answered on the error channel and nothing 
   keyframe("negative robot", "robot_id", [](keyframe_t& k) { k.robot_id = -2; });
   keyframe(
       "has_odom_edge not boolean", "has_odom_edge", [](keyframe_t& k) { k.has_odom_edge = 7; });
-  keyframe("empty sender", "header.sender", [](keyframe_t& k) { k.header.sender.clear(); });
+  {
+    keyframe_t k = Keyframe(0, 5);
+    k.header.sender.clear();
+    raw("empty sender", ch.keyframe, EncodeMessage(k));
+    bad.back().field = "header.sender";
+    k.header.sender = std::string(65, 'r');
+    raw("sender name over 64 bytes", ch.keyframe, EncodeMessage(k));
+    bad.back().field = "header.sender";
+  }
   keyframe("duplicate key", "key", [](keyframe_t& k) { k.key = 0; });
   keyframe("session changes pose type", "dim", [](keyframe_t& k) {
     k.dim = keyframe_t::DIM_SE3;
@@ -473,53 +509,42 @@ TEST_CASE("Every kind of bad input is answered on the error channel and nothing 
     InformationToWire<Pose2>(Pose2::Matrix::Zero(), l.information);
   });
   {
-    session_event_t e{};
-    e.header = {0, 1, "robot"};
-    e.event = 9;
-    bad.push_back({"unknown session event", ch.session, EncodeMessage(e), "event"});
-    e.event = session_event_t::END;
-    e.session_id = 77;
-    bad.push_back({"END of an unknown session", ch.session, EncodeMessage(e), "session_id"});
+    session_event_t e = SessionEvent(9);
+    bad.push_back({"unknown session event", ch.session, [e](Producer& p) { p.Send(e); }, "event"});
+    e = SessionEvent(session_event_t::END, 77);
+    bad.push_back(
+        {"END of an unknown session", ch.session, [e](Producer& p) { p.Send(e); }, "session_id"});
   }
+  raw("garbage bytes", ch.keyframe, std::vector<uint8_t>(64, 0xAB));
   {
-    std::vector<uint8_t> garbage(64, 0xAB);
-    bad.push_back({"garbage bytes", ch.keyframe, garbage, ""});
     std::vector<uint8_t> truncated = EncodeMessage(Keyframe(0, 5));
     truncated.resize(truncated.size() / 2);
-    bad.push_back({"truncated message", ch.loop, truncated, ""});
-    bad.push_back({"a keyframe on the loop channel", ch.loop, EncodeMessage(Keyframe(0, 5)), ""});
-    bad.push_back(
-        {"message over max_message_bytes", ch.keyframe, std::vector<uint8_t>(5000, 0), ""});
+    raw("truncated message", ch.loop, truncated);
   }
+  raw("a keyframe on the loop channel", ch.loop, EncodeMessage(Keyframe(0, 5)));
+  raw("message over max_message_bytes", ch.keyframe, std::vector<uint8_t>(5000, 0));
   REQUIRE(bad.size() >= 30);
   // Not errors: inputs that refer to keyframes not received yet wait for them.
-  std::vector<std::pair<std::string, std::vector<uint8_t>>> waiting;
+  std::vector<std::function<void()>> waiting;
   {
-    keyframe_t gap = Keyframe(0, 40);
-    waiting.emplace_back(ch.keyframe, EncodeMessage(gap));
-    loop_hypothesis_t ahead = Loop(200, 3, 999);
-    waiting.emplace_back(ch.loop, EncodeMessage(ahead));
+    waiting.push_back([&producer] { producer.Send(Keyframe(0, 40)); });
+    waiting.push_back([&producer] { producer.Send(Loop(200, 3, 999)); });
     loop_hypothesis_t elsewhere = Loop(201, 3, 5);
     elsewhere.session_from = 9;
-    waiting.emplace_back(ch.loop, EncodeMessage(elsewhere));
+    waiting.push_back([&producer, elsewhere] { producer.Send(elsewhere); });
   }
 
   // The bad inputs go in between the valid ones, at the point where the state they test holds
   // (after key 19 was received: a duplicate key 0, a gap to 40, an older stamp for key 20).
   int answered = 0;
   auto errors = [&] { return sink.Decoded<error_t>(ch.error); };
-  size_t next_bad = 0;
   for (size_t k = 0; k < valid.size(); ++k) {
-    service.Receive(
-        valid[k].first, valid[k].second.data(), static_cast<int>(valid[k].second.size()));
-    service.ProcessQueued(std::chrono::milliseconds(0));
+    valid[k]();
     if (k + 2 != valid.size()) continue;  // after the last keyframe and loop, before END
-    for (; next_bad < bad.size(); ++next_bad) {
-      const BadInput& b = bad[next_bad];
+    for (const BadInput& b : bad) {
       INFO(b.what);
       const size_t before = errors().size();
-      service.Receive(b.channel, b.bytes.data(), static_cast<int>(b.bytes.size()));
-      service.ProcessQueued(std::chrono::milliseconds(0));
+      b.send(producer);
       const std::vector<error_t> now = errors();
       REQUIRE(now.size() == before + 1);
       const error_t& e = now.back();
@@ -529,10 +554,7 @@ TEST_CASE("Every kind of bad input is answered on the error channel and nothing 
       CHECK(e.daemon_id == daemon.daemon_id);
       ++answered;
     }
-    for (const auto& [channel, bytes] : waiting) {
-      service.Receive(channel, bytes.data(), static_cast<int>(bytes.size()));
-      service.ProcessQueued(std::chrono::milliseconds(0));
-    }
+    for (const auto& send : waiting) send();
     CHECK(errors().size() == bad.size());
     CHECK(service.CurrentStatus().n_parked == static_cast<int>(waiting.size()));
   }
@@ -540,6 +562,10 @@ TEST_CASE("Every kind of bad input is answered on the error channel and nothing 
   const status_t status = service.CurrentStatus();
   CHECK(status.n_errors == static_cast<int64_t>(bad.size()));
   CHECK(status.n_undecodable == 4);
+  REQUIRE(status.n_senders == 1);
+  CHECK(status.senders[0].sender == "robot");
+  CHECK(status.senders[0].gaps == 0);  // rejected inputs take their seq: nothing is re-requested
+  CHECK(status.senders[0].held == 0);
   CHECK(status.last_error.size() > 0);
   // Every valid input was applied: 20 keys, four loops, all accepted once the session ended.
   REQUIRE(valid_loops == 4);
@@ -562,26 +588,17 @@ TEST_CASE("Inputs that arrive before what they refer to wait for it, then apply 
     IrrrOptions options;
     options.cluster_gap = 3.0;
     Service service(daemon, options, &sink);
+    Producer producer(&service, daemon.channels);
     for (const auto& [kind, value] : order) {
-      std::vector<uint8_t> bytes;
-      std::string channel;
       if (kind == 0) {
-        bytes = EncodeMessage(Keyframe(0, value));
-        channel = daemon.channels.keyframe;
+        producer.Send(Keyframe(0, value));
       } else if (kind == 1) {
         loop_hypothesis_t l = Loop(7, 5, 12);
         l.measurement = PoseToWire(Pose2(7.05, 0.02, 0.01));  // a little noise: a real fit
-        bytes = EncodeMessage(l);
-        channel = daemon.channels.loop;
+        producer.Send(l);
       } else {
-        session_event_t end{};
-        end.header = {0, 0, "robot"};
-        end.event = session_event_t::END;
-        bytes = EncodeMessage(end);
-        channel = daemon.channels.session;
+        producer.Send(SessionEvent(session_event_t::END));
       }
-      service.Receive(channel, bytes.data(), static_cast<int>(bytes.size()));
-      service.ProcessQueued(std::chrono::milliseconds(0));
     }
     *status = service.CurrentStatus();
     std::vector<Pose2> poses;
@@ -634,11 +651,8 @@ TEST_CASE("Waiting inputs are bounded by limits.max_parked", "[daemon]") {
   DaemonOptions daemon;
   daemon.limits.max_parked = 2;
   Service service(daemon, IrrrOptions(), &sink);
-  for (int64_t key : {0, 5, 6, 7}) {
-    const std::vector<uint8_t> bytes = EncodeMessage(Keyframe(0, key));
-    service.Receive(daemon.channels.keyframe, bytes.data(), static_cast<int>(bytes.size()));
-    service.ProcessQueued(std::chrono::milliseconds(0));
-  }
+  Producer producer(&service, daemon.channels);
+  for (int64_t key : {0, 5, 6, 7}) producer.Send(Keyframe(0, key));
   CHECK(service.CurrentStatus().n_parked == 2);
   const std::vector<error_t> errors = sink.Decoded<error_t>(daemon.channels.error);
   REQUIRE(errors.size() == 1);
@@ -646,22 +660,45 @@ TEST_CASE("Waiting inputs are bounded by limits.max_parked", "[daemon]") {
   CHECK_THAT(errors[0].reason, Contains("max_parked"));
 }
 
-TEST_CASE("A full input queue answers instead of growing", "[daemon]") {
+TEST_CASE("A full input queue refuses, then re-requests what it refused: nothing is lost",
+          "[daemon]") {
   RecordingSink sink;
   DaemonOptions daemon;
   daemon.limits.queue_limit = 5;
+  daemon.resync.interval_ms = 1;
   Service service(daemon, IrrrOptions(), &sink);
+  Producer producer(&service, daemon.channels);
+  std::vector<std::vector<uint8_t>> sent;
   for (int64_t key = 0; key < 8; ++key) {
-    const std::vector<uint8_t> bytes = EncodeMessage(Keyframe(0, key));
-    service.Receive(daemon.channels.keyframe, bytes.data(), static_cast<int>(bytes.size()));
+    sent.push_back(producer.Stamp(Keyframe(0, key)));
+    producer.Raw(daemon.channels.keyframe, sent.back(), /*apply=*/false);
   }
   CHECK(service.QueueDepth() == 5);
+  // Key 5 is refused (answered); 6 and 7 wait for it in their sender's order.
   const std::vector<error_t> errors = sink.Decoded<error_t>(daemon.channels.error);
-  REQUIRE(errors.size() == 3);
+  REQUIRE(errors.size() == 1);
   CHECK_THAT(errors[0].reason, Contains("queue full"));
   CHECK(errors[0].key == 5);
+  status_t status = service.CurrentStatus();
+  CHECK(status.senders[0].next_seq == 5);
+  CHECK(status.senders[0].held == 2);
   CHECK(service.ProcessQueued(std::chrono::milliseconds(0)) == 5);
-  CHECK(service.CurrentStatus().n_keyframes == 5);
+  // The daemon asks for seq 5 again; the producer resends it; 6 and 7 follow.
+  std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  service.Tick();
+  const std::vector<resync_request_t> requests =
+      sink.Decoded<resync_request_t>(daemon.channels.resync);
+  REQUIRE(requests.size() == 1);
+  CHECK(requests[0].sender == "robot");
+  REQUIRE(requests[0].n_ranges == 1);
+  CHECK(requests[0].first_seq[0] == 5);
+  CHECK(requests[0].last_seq[0] == 5);
+  producer.Raw(daemon.channels.keyframe, sent[5]);
+  status = service.CurrentStatus();
+  CHECK(status.n_keyframes == 8);
+  CHECK(status.senders[0].next_seq == 8);
+  CHECK(status.senders[0].held == 0);
+  CHECK(status.n_errors == 1);
 }
 
 TEST_CASE("Corrections carry map-to-odometry transforms and every pose in chunks", "[daemon]") {
@@ -671,25 +708,19 @@ TEST_CASE("Corrections carry map-to-odometry transforms and every pose in chunks
   IrrrOptions options;
   options.cluster_gap = 5.0;
   Service service(daemon, options, &sink);
+  Producer producer(&service, daemon.channels);
   const int kKeys = 2000;
   for (int64_t key = 0; key < kKeys; ++key) {
     keyframe_t k = Keyframe(4, key);
     k.robot_id = 2;
     k.odom_pose = PoseToWire(Pose2(10.0 + key, 5.0, 0.0));  // odometry frame: origin at (10, 5)
-    const std::vector<uint8_t> bytes = EncodeMessage(k);
-    service.Receive(daemon.channels.keyframe, bytes.data(), static_cast<int>(bytes.size()));
+    producer.Send(k, /*apply=*/false);
   }
   loop_hypothesis_t l = Loop(1, 1990, 1995);
   l.robot_from = l.robot_to = 2;
   l.session_from = l.session_to = 4;
-  std::vector<uint8_t> bytes = EncodeMessage(l);
-  service.Receive(daemon.channels.loop, bytes.data(), static_cast<int>(bytes.size()));
-  session_event_t flush{};
-  flush.header = {0, 0, "robot"};
-  flush.event = session_event_t::FLUSH;
-  bytes = EncodeMessage(flush);
-  service.Receive(daemon.channels.session, bytes.data(), static_cast<int>(bytes.size()));
-  service.ProcessQueued(std::chrono::milliseconds(0));
+  producer.Send(l, /*apply=*/false);
+  producer.Send(SessionEvent(session_event_t::FLUSH));
 
   // The step's correction (decisions, transforms), then a full one (poses), as the worker
   // caught up with its input.
@@ -906,8 +937,9 @@ TEST_CASE("udpm: irrrd fed by irrr-inject decides as irrr-batch", "[.][udpm]") {
   const int code = RunTool(inject, dir + "/inject.log");
   INFO(inject << "\n" << ReadText(dir + "/inject.log") << "\n" << ReadText(dir + "/daemon.log"));
   REQUIRE(code == 0);
-  CHECK(daemon.Stop() == 0);
+  // The listener first: before writing, it asks the daemon for its whole solution.
   CHECK(listener.Stop(SIGINT) == 0);
+  CHECK(daemon.Stop() == 0);
   CHECK_THAT(ReadText(dir + "/daemon.log"), Contains("0 input(s) rejected"));
   CheckSameAsBatch(dir);
 }
@@ -963,8 +995,9 @@ TEST_CASE("udpm: an LCM log written by irrr-inject and replayed by lcm-logplayer
         watcher.status.queue_depth == 0 && watcher.status.n_keyframes == 400 ? settled + 1 : 0;
   }
   CHECK(settled == 3);
-  CHECK(daemon.Stop() == 0);
+  // The listener first: before writing, it asks the daemon for its whole solution.
   CHECK(listener.Stop(SIGINT) == 0);
+  CHECK(daemon.Stop() == 0);
   CheckSameAsBatch(dir);
 }
 

@@ -64,6 +64,26 @@ inline void WriteIntelPrefix(int num_poses, const std::string& path) {
   REQUIRE(WriteGraphFile(out, FileFormat::kG2o, prefix).ok());
 }
 
+#ifdef IRRR_CORRUPT
+// A two-session Intel prefix of 400 poses (split at 200) with 30 wrong inter-session loops in
+// groups of 3, made by irrr-corrupt (labels in dir/labels.csv).
+inline std::string MakeTwoSessionIntel(const std::string& dir) {
+  const std::string clean = dir + "/intel400.g2o";
+  WriteIntelPrefix(400, clean);
+  const std::string corrupted = dir + "/intel400_2sessions.g2o";
+  const std::string log = dir + "/corrupt.log";
+  const std::string command = std::string(IRRR_CORRUPT) + " " + Quoted(clean) + " " +
+                              Quoted(corrupted) +
+                              " --split 200 --mode inter-session --count 30 --group-size 3 "
+                              "--seed 3 --labels " +
+                              Quoted(dir + "/labels.csv");
+  const int code = RunTool(command, log);
+  INFO(command << "\n" << ReadText(log));
+  REQUIRE(code == 0);
+  return corrupted;
+}
+#endif
+
 }  // namespace irrr
 
 #endif  // IRRR_TESTS_TEST_FILES_H_

@@ -1,0 +1,74 @@
+#ifndef IRRR_DAEMON_JOURNAL_H_
+#define IRRR_DAEMON_JOURNAL_H_
+
+// The daemon's journal: every input it takes, in the order it applies them, appended before they
+// are applied, so that a restart replays exactly the same sequence and rebuilds the same state.
+//
+// File: the 8 bytes "IRRRJNL1", then records, each
+//   uint32 payload length | uint32 CRC-32 (zlib) of the payload | payload
+//   payload = uint8 channel kind | int64 received_utime | the LCM-encoded message
+// in little-endian byte order. A record that is cut short or fails its CRC ends the journal: a
+// crash can tear only the last write, so everything from there on is dropped (and truncated
+// away) with a log line.
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "clients/irrr_config.h"
+#include "core/status.h"
+
+namespace irrr {
+
+struct JournalRecord {
+  enum Kind : uint8_t { kKeyframe = 0, kLoop = 1, kSession = 2 };
+  Kind kind = kKeyframe;
+  int64_t received_utime = 0;
+  std::vector<uint8_t> bytes;  // the message as received
+};
+
+// What Open found.
+struct JournalRecovery {
+  std::vector<JournalRecord> records;
+  int64_t valid_bytes = 0;    // the journal's length after recovery
+  int64_t dropped_bytes = 0;  // a torn or corrupt tail, truncated away
+  std::string dropped_reason;
+};
+
+class Journal {
+ public:
+  Journal() = default;
+  ~Journal();
+  Journal(const Journal&) = delete;
+  Journal& operator=(const Journal&) = delete;
+
+  // `sync` says when appended records reach the disk. A process crash, kill -9 included, loses
+  // nothing written under any policy; the policy is about power loss and kernel crashes: kNever
+  // leaves write-back to the kernel, kBatch calls fdatasync after each Append (the worker appends
+  // a batch before applying it), kAlways after every record.
+  // Opens (creating it if missing) the journal at `path`, reads back every valid record into
+  // `recovery`, truncates a torn tail, and positions for appending.
+  Status Open(const std::string& path, JournalSyncPolicy sync, JournalRecovery* recovery);
+  // Appends records (one write), then syncs per the policy.
+  Status Append(const std::vector<JournalRecord>& records);
+  int64_t size_bytes() const { return size_; }
+  const std::string& path() const { return path_; }
+
+ private:
+  int fd_ = -1;
+  std::string path_;
+  JournalSyncPolicy sync_ = JournalSyncPolicy::kBatch;
+  int64_t size_ = 0;
+};
+
+// Encodes one record (length, CRC, payload), and decodes the records at the start of `data`
+// (stops at the first incomplete or corrupt one; `*consumed` = bytes of the valid records).
+std::vector<uint8_t> EncodeJournalRecord(const JournalRecord& record);
+std::vector<JournalRecord> DecodeJournalRecords(const std::vector<uint8_t>& data,
+                                                size_t begin,
+                                                size_t* consumed,
+                                                std::string* stop_reason);
+
+}  // namespace irrr
+
+#endif  // IRRR_DAEMON_JOURNAL_H_
