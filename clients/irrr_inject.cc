@@ -60,6 +60,12 @@ class StatusWatcher {
   void OnStatus(const lcm::ReceiveBuffer* buffer, const std::string&) {
     if (status.decode(buffer->data, 0, static_cast<int>(buffer->data_size)) < 0) return;
     heard = true;
+    if (status.start_utime != start_utime) {
+      // A daemon (re)started: only what this run has taken counts; after a crash that is what
+      // its journal held, and the rest is sent again.
+      counts.clear();
+      start_utime = status.start_utime;
+    }
     for (const sender_count_t& s : status.senders) counts[s.sender] = s;
   }
   // Sum of `field` over our senders.
@@ -87,6 +93,7 @@ class StatusWatcher {
 
   bool heard = false;
   status_t status{};
+  int64_t start_utime = 0;
   std::map<std::string, sender_count_t> counts;
 };
 
