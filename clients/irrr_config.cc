@@ -405,7 +405,8 @@ Status DaemonOptions::Validate() const {
     }
   }
   for (int robot : allowed_robots) {
-    if (robot < 0) return Status::Error("allowed_robots: negative robot id " + std::to_string(robot));
+    if (robot < 0)
+      return Status::Error("allowed_robots: negative robot id " + std::to_string(robot));
   }
   return Status::Ok();
 }

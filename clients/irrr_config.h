@@ -48,15 +48,15 @@ nlohmann::json IrrrOptionsToJson(const IrrrOptions& options);
 
 // LCM channel names of the daemon (the "daemon.channels" object).
 struct DaemonChannels {
-  std::string keyframe = "IRRR_KEYFRAME";      // in: keyframe_t
-  std::string loop = "IRRR_LOOP";              // in: loop_hypothesis_t
-  std::string session = "IRRR_SESSION";        // in: session_event_t
-  std::string correction = "IRRR_CORRECTION";  // out: correction_t
-  std::string verdicts = "IRRR_VERDICTS";      // out: verdicts_t
-  std::string solution = "IRRR_SOLUTION";      // out: solution_t
-  std::string status = "IRRR_STATUS";          // out: status_t
-  std::string error = "IRRR_ERROR";            // out: error_t
-  std::string resync = "IRRR_RESYNC";          // out: resync_request_t (to producers)
+  std::string keyframe = "IRRR_KEYFRAME";                  // in: keyframe_t
+  std::string loop = "IRRR_LOOP";                          // in: loop_hypothesis_t
+  std::string session = "IRRR_SESSION";                    // in: session_event_t
+  std::string correction = "IRRR_CORRECTION";              // out: correction_t
+  std::string verdicts = "IRRR_VERDICTS";                  // out: verdicts_t
+  std::string solution = "IRRR_SOLUTION";                  // out: solution_t
+  std::string status = "IRRR_STATUS";                      // out: status_t
+  std::string error = "IRRR_ERROR";                        // out: error_t
+  std::string resync = "IRRR_RESYNC";                      // out: resync_request_t (to producers)
   std::string solution_request = "IRRR_SOLUTION_REQUEST";  // in: solution_request_t
 };
 

@@ -298,8 +298,8 @@ int Publish(const Arguments& args,
       std::chrono::duration<double>(1.0 / (args.rate > 0 ? args.rate : kMaxRate)));
   auto next_send = start;
   for (size_t k = 0; k < messages.size(); ++k) {
-    if (args.rate == 0 && (watcher.Missing(*fleet) >= args.window ||
-                           watcher.status.queue_depth >= args.window)) {
+    if (args.rate == 0 &&
+        (watcher.Missing(*fleet) >= args.window || watcher.status.queue_depth >= args.window)) {
       if (!wait_for([&] {
             return watcher.Missing(*fleet) < args.window / 2 &&
                    watcher.status.queue_depth < args.window / 2;
@@ -323,9 +323,10 @@ int Publish(const Arguments& args,
   // within a few seconds is not there.
   const auto silent_deadline = Clock::now() + std::chrono::seconds(3);
   const bool all = wait_for([&] {
-    return (watcher.heard && watcher.Missing(*fleet) == 0) ||
-           (!watcher.heard && Clock::now() > silent_deadline);
-  }) && watcher.heard;
+                     return (watcher.heard && watcher.Missing(*fleet) == 0) ||
+                            (!watcher.heard && Clock::now() > silent_deadline);
+                   }) &&
+                   watcher.heard;
   fmt::print(
       "sent      {} messages in {:.2f} s ({:.0f} per second); resent {} ({} requests from the "
       "daemon); the daemon is missing {}\n",
@@ -347,12 +348,18 @@ int Publish(const Arguments& args,
   const bool done =
       wait_for([&] { return watcher.Missing(*fleet) == 0 && watcher.status.queue_depth == 0; });
   if (!done) {
-    fmt::print(stderr, "irrr-inject: the daemon did not finish within {} s\n", args.timeout_s);
+    fmt::print(stderr,
+               "irrr-inject: the daemon did not finish within {} s (its latest status: {} of our "
+               "messages missing, {} inputs queued)\n",
+               args.timeout_s,
+               watcher.Missing(*fleet),
+               watcher.status.queue_depth);
     return EX_UNAVAILABLE;
   }
   const status_t& st = watcher.status;
   fmt::print(
-      "daemon    took {} messages from {} sender(s) ({} rejected, {} duplicates ignored), {} "
+      "daemon    took all {} messages (inputs and progress requests) from {} sender(s) ({} "
+      "rejected, {} duplicates ignored), {} "
       "steps, {} loops accepted, {} rejected or reversed, {} component(s), latest solution {}\n",
       watcher.Total(*fleet, &sender_count_t::next_seq),
       fleet->names().size(),

@@ -131,8 +131,8 @@ MessageSequencer::Encoded MessageSequencer::Encode(ReplayMessage message, int64_
 }
 
 MessageSequencer::Encoded MessageSequencer::Progress(int32_t robot_id,
-                                                    int32_t session_id,
-                                                    int64_t utime) {
+                                                     int32_t session_id,
+                                                     int64_t utime) {
   ReplayMessage m;
   m.kind = ReplayMessage::Kind::kSession;
   m.session.event = session_event_t::PROGRESS;

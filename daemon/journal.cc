@@ -12,15 +12,16 @@ namespace irrr {
 namespace {
 
 constexpr char kMagic[8] = {'I', 'R', 'R', 'R', 'J', 'N', 'L', '1'};
-constexpr size_t kRecordHeader = 8;        // length + CRC
-constexpr size_t kPayloadHeader = 1 + 8;   // kind + received_utime
+constexpr size_t kRecordHeader = 8;       // length + CRC
+constexpr size_t kPayloadHeader = 1 + 8;  // kind + received_utime
 constexpr uint32_t kMaxPayload = 64u << 20;
 
 void PutU32(uint32_t v, std::vector<uint8_t>* out) {
   for (int k = 0; k < 4; ++k) out->push_back(static_cast<uint8_t>(v >> (8 * k)));
 }
 void PutI64(int64_t v, std::vector<uint8_t>* out) {
-  for (int k = 0; k < 8; ++k) out->push_back(static_cast<uint8_t>(static_cast<uint64_t>(v) >> (8 * k)));
+  for (int k = 0; k < 8; ++k)
+    out->push_back(static_cast<uint8_t>(static_cast<uint64_t>(v) >> (8 * k)));
 }
 uint32_t GetU32(const uint8_t* p) {
   uint32_t v = 0;
@@ -178,7 +179,8 @@ Status Journal::Append(const std::vector<JournalRecord>& records) {
     }
     size_ += static_cast<int64_t>(out.size());
   }
-  if (sync_ == JournalSyncPolicy::kBatch && fdatasync(fd_) != 0) return Errno(path_ + ": fdatasync");
+  if (sync_ == JournalSyncPolicy::kBatch && fdatasync(fd_) != 0)
+    return Errno(path_ + ": fdatasync");
   return Status::Ok();
 }
 

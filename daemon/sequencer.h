@@ -60,8 +60,8 @@ class Sequencer {
   // message that follows in order; it returns false when the receiver cannot take one now (that
   // message is dropped and the stream waits for its resend).
   template <class Take>
-  Outcome Offer(const std::string& sender, int64_t seq, Message message, Clock::time_point now,
-                Take take) {
+  Outcome Offer(
+      const std::string& sender, int64_t seq, Message message, Clock::time_point now, Take take) {
     Stream& s = streams_[sender];
     s.counts.last_seq = std::max(s.counts.last_seq, seq);
     if (seq < s.counts.next_seq || s.held.count(seq) != 0) {

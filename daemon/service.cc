@@ -379,12 +379,13 @@ struct Service::State {
   }
 
   void Reject(const Rejection& r) {
-    spdlog::log(replaying ? spdlog::level::debug : spdlog::level::warn,"rejected {} from \"{}\" (seq {}): {}: {}",
-                 r.channel,
-                 r.sender,
-                 r.seq,
-                 r.field.empty() ? "message" : r.field,
-                 r.reason);
+    spdlog::log(replaying ? spdlog::level::debug : spdlog::level::warn,
+                "rejected {} from \"{}\" (seq {}): {}: {}",
+                r.channel,
+                r.sender,
+                r.seq,
+                r.field.empty() ? "message" : r.field,
+                r.reason);
     {
       std::lock_guard<std::mutex> lock(stats_mutex);
       ++stats.n_errors;
@@ -431,8 +432,8 @@ struct Service::State {
       return false;
     }
     const int64_t seq = input.header().seq;
-    const bool progress = input.kind == Input::Kind::kSession &&
-                          input.session.event == session_event_t::PROGRESS;
+    const bool progress =
+        input.kind == Input::Kind::kSession && input.session.event == session_event_t::PROGRESS;
     {
       std::lock_guard<std::mutex> lock(stats_mutex);
       ++SenderLocked(sender).received;
@@ -443,10 +444,11 @@ struct Service::State {
           return Take(std::move(in));
         });
     if (outcome == Sequencer<Input>::Outcome::kDuplicate && warned_senders.insert(sender).second) {
-      spdlog::warn("\"{}\" sent seq {} again (a resend, or a producer that does not count "
-                   "header.seq from 0 up): duplicates are ignored",
-                   sender,
-                   seq);
+      spdlog::warn(
+          "\"{}\" sent seq {} again (a resend, or a producer that does not count "
+          "header.seq from 0 up): duplicates are ignored",
+          sender,
+          seq);
     }
     if (outcome == Sequencer<Input>::Outcome::kHoldFull) {
       Rejection r = about;
@@ -468,6 +470,10 @@ struct Service::State {
     }
     if (Status s = CheckInputFields(input); !s.ok()) {
       Reject(RejectionOfInput(daemon.channels, input), s);
+      return true;
+    }
+    // A PROGRESS changes nothing: its place in the order is all it takes (a status answers it).
+    if (input.kind == Input::Kind::kSession && input.session.event == session_event_t::PROGRESS) {
       return true;
     }
     {
@@ -996,7 +1002,8 @@ struct Service::State {
 
     const double latency_ms = 1e-3 * static_cast<double>(c.published_utime - closed_utime);
     const Counts& counts = EngineCounts<Pose>();
-    spdlog::log(replaying ? spdlog::level::debug : spdlog::level::info,
+    spdlog::log(
+        replaying ? spdlog::level::debug : spdlog::level::info,
         "step {} (cluster {}): {} decision(s) changed, {} accepted and {} rejected or reversed in "
         "all; {} "
         "session(s) re-estimated; decided in {:.1f} ms ({} solves), published {:.1f} ms after the "

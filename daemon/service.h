@@ -4,10 +4,10 @@
 // The iRRR service: what irrrd does, without the process around it (LCM sockets, signals,
 // threads). Raw messages come in through Receive (the receiving thread: decode, check the fields,
 // queue; never waits for optimization), each sender's in the order of its header.seq
-// (sequencer.h: lost ones re-requested, duplicates ignored); ProcessQueued (the worker thread) applies them in arrival
-// order to core's Irrr, one per pose type, runs the steps whose clusters closed, and publishes a
-// correction after each step. Everything it publishes goes to a MessageSink (LCM in the daemon, a
-// list in tests).
+// (sequencer.h: lost ones re-requested, duplicates ignored); ProcessQueued (the worker thread)
+// applies them in arrival order to core's Irrr, one per pose type, runs the steps whose clusters
+// closed, and publishes a correction after each step. Everything it publishes goes to a MessageSink
+// (LCM in the daemon, a list in tests).
 //
 // Identity on the wire: a session is (robot_id, session_id), a pose (robot_id, session_id, key),
 // a hypothesis (sender, hypothesis_id). A session's pose type is that of its first keyframe.

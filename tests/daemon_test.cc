@@ -10,11 +10,11 @@
 #include <cmath>
 #include <cstdio>
 #include <functional>
-#include <random>
 #include <limits>
 #include <map>
 #include <memory>
 #include <mutex>
+#include <random>
 #include <string>
 #include <thread>
 #include <vector>
@@ -964,22 +964,23 @@ std::unique_ptr<Background> StartDaemon(const std::string& command, const std::s
   return daemon;
 }
 
-TEST_CASE("udpm: irrrd killed with SIGKILL at 12 random points while a dataset streams in "
-          "restarts from its journal, and ends as irrr-batch",
-          "[.][udpm]") {
+TEST_CASE(
+    "udpm: irrrd killed with SIGKILL at 12 random points while a dataset streams in "
+    "restarts from its journal, and ends as irrr-batch",
+    "[.][udpm]") {
   const std::string dir = TestDirectory("daemon_kill");
   const std::string input = MakeTwoSessionIntel(dir);
   const std::string config = WriteDaemonConfig(dir);
   RunBatch(dir, input, config);
-  const std::string irrrd = std::string(IRRRD) + " --config " + Quoted(config) + " --journal " +
-                            Quoted(dir + "/journal");
+  const std::string irrrd =
+      std::string(IRRRD) + " --config " + Quoted(config) + " --journal " + Quoted(dir + "/journal");
   Background listener(std::string(IRRR_LISTEN) + " --config " + Quoted(config) + " --decisions " +
                           Quoted(dir + "/listen.csv") + " --output " + Quoted(dir + "/listen.g2o"),
                       dir + "/listen.log");
   std::unique_ptr<Background> daemon = StartDaemon(irrrd, dir + "/daemon0.log");
   // At 80 messages per second the stream lasts about 9 s.
-  Background inject(std::string(IRRR_INJECT) + " " + Quoted(input) + " --config " +
-                        Quoted(config) + " --rate 80 --wait --timeout 300",
+  Background inject(std::string(IRRR_INJECT) + " " + Quoted(input) + " --config " + Quoted(config) +
+                        " --rate 80 --wait --timeout 300",
                     dir + "/inject.log");
   const unsigned seed = std::random_device()();
   std::mt19937 random(seed);
@@ -989,9 +990,8 @@ TEST_CASE("udpm: irrrd killed with SIGKILL at 12 random points while a dataset s
   const auto start = std::chrono::steady_clock::now();
   for (int k = 1; k <= kKills; ++k) {
     std::this_thread::sleep_for(std::chrono::milliseconds(pause_ms(random)));
-    kills += fmt::format(" {:.2f}",
-                         std::chrono::duration<double>(std::chrono::steady_clock::now() - start)
-                             .count());
+    kills += fmt::format(
+        " {:.2f}", std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
     CHECK(inject.Running());  // the stream is still coming in
     CHECK(daemon->Stop(SIGKILL) == 128 + SIGKILL);
     daemon = StartDaemon(irrrd, dir + "/daemon" + std::to_string(k) + ".log");
@@ -1006,10 +1006,10 @@ TEST_CASE("udpm: irrrd killed with SIGKILL at 12 random points while a dataset s
   // the dead daemons had lost.
   int recovered = 0;
   for (int k = 1; k <= kKills; ++k) {
-    recovered += ReadText(dir + "/daemon" + std::to_string(k) + ".log").find("replayed") !=
-                         std::string::npos
-                     ? 1
-                     : 0;
+    recovered +=
+        ReadText(dir + "/daemon" + std::to_string(k) + ".log").find("replayed") != std::string::npos
+            ? 1
+            : 0;
   }
   CHECK(recovered == kKills);
   CHECK_THAT(ReadText(dir + "/inject.log"), Contains("the daemon is missing 0"));
@@ -1021,8 +1021,9 @@ TEST_CASE("udpm: irrrd killed with SIGKILL at 12 random points while a dataset s
 class PacketLoss {
  public:
   explicit PacketLoss(int percent) {
-    if (std::system(fmt::format("tc qdisc add dev lo root netem loss {}% 2>/dev/null", percent)
-                        .c_str()) == 0) {
+    if (std::system(
+            fmt::format("tc qdisc add dev lo root netem loss {}% 2>/dev/null", percent).c_str()) ==
+        0) {
       how_ = "tc netem";
       return;
     }
@@ -1051,9 +1052,11 @@ class PacketLoss {
       const size_t at = text.find("Sent ");
       long long bytes = 0;
       long long sent = 0;
-      if (at != std::string::npos &&
-          std::sscanf(text.c_str() + at, "Sent %lld bytes %lld pkt (dropped %lld", &bytes, &sent,
-                      &dropped) == 3) {
+      if (at != std::string::npos && std::sscanf(text.c_str() + at,
+                                                 "Sent %lld bytes %lld pkt (dropped %lld",
+                                                 &bytes,
+                                                 &sent,
+                                                 &dropped) == 3) {
         seen = sent + dropped;
       }
       return {seen, dropped};

@@ -334,7 +334,11 @@ void CheckAnswer(const Service& service, const Case& c, double tolerance) {
 class LossyProducer {
  public:
   LossyProducer(Service* service, Sink* sink, const DaemonChannels& ch, double loss, uint32_t seed)
-      : service_(service), sink_(sink), ch_(ch), sequencer_("robot", ch), loss_(loss),
+      : service_(service),
+        sink_(sink),
+        ch_(ch),
+        sequencer_("robot", ch),
+        loss_(loss),
         random_(seed) {}
 
   void Send(const ReplayMessage& m) { Transmit(sequencer_.Encode(m, NowUtime())); }
@@ -560,7 +564,7 @@ TEST_CASE("The allow-list ignores other senders and robots, and counts them", "[
   send("robot3/frontend", 3, 0);
   send("intruder", 3, 0);
   send("robot4/frontend", 4, 0);
-  send("base", 4, 0);  // an allowed sender naming a robot that is not allowed
+  send("base", 4, 0);    // an allowed sender naming a robot that is not allowed
   send("robot3", 3, 0);  // "robot3/*" needs the slash
   const status_t status = service.CurrentStatus();
   CHECK(status.n_keyframes == 1);
