@@ -1073,9 +1073,9 @@ struct Service::State {
     std::vector<solution_t> chunks;
     int state_changes = 0;
     auto all = [](const auto& engine) {
-      std::vector<int> sessions(engine.sessions.size());
-      for (size_t k = 0; k < sessions.size(); ++k) sessions[k] = static_cast<int>(k);
-      return sessions;
+      std::vector<int> indices(engine.sessions.size());
+      for (size_t k = 0; k < indices.size(); ++k) indices[k] = static_cast<int>(k);
+      return indices;
     };
     Describe(se2, all(se2), Detail::kComplete, &c, &verdicts, &chunks, &state_changes);
     Describe(se3, all(se3), Detail::kComplete, &c, &verdicts, &chunks, &state_changes);
