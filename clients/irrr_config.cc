@@ -39,6 +39,7 @@ void VisitFields(IrrrOptions& options, Visitor& visit) {
   visit("retry_within_step", options.retry_within_step);
   visit("local_problems", options.local_problems);
   visit("warm_start", options.warm_start);
+  visit("max_cluster_size", options.max_cluster_size);
   visit("optimizer", options.optimizer);
 }
 

@@ -727,6 +727,7 @@ Status IrrrOptions::Validate() const {
     return Status::Error("cluster_gap must be a finite number >= 0");
   }
   if (elimination_lookahead < 1) return Status::Error("elimination_lookahead must be >= 1");
+  if (max_cluster_size < 0) return Status::Error("max_cluster_size must be >= 0");
   if (Status s = optimizer.Validate(); !s.ok()) return Status::Error("optimizer: " + s.message());
   return Status::Ok();
 }
@@ -751,7 +752,7 @@ const char* LoopStateName(LoopState state) {
 
 template <class Pose>
 struct Irrr<Pose>::State {
-  explicit State(const IrrrOptions& o) : options(o), clusterer(o.cluster_gap) {
+  explicit State(const IrrrOptions& o) : options(o), clusterer(o.cluster_gap, o.max_cluster_size) {
     consensus.graph = &graph;
     consensus.options = &options;
     consensus.decisions = &decisions;
@@ -971,7 +972,7 @@ std::vector<LoopDecision> RunBatchRrr(const PoseGraph<Pose>& graph,
   auto arrival = [&graph](int e) { return std::max(graph.edge(e).from, graph.edge(e).to); };
   std::stable_sort(
       loops.begin(), loops.end(), [&](int a, int b) { return arrival(a) < arrival(b); });
-  LoopClusterer clusterer(options.cluster_gap);
+  LoopClusterer clusterer(options.cluster_gap, options.max_cluster_size);
   for (int e : loops) {
     const Vertex& from = graph.vertex(graph.edge(e).from);
     const Vertex& to = graph.vertex(graph.edge(e).to);

@@ -76,6 +76,9 @@ struct IrrrOptions {
   // The joint tests of the incremental algorithm start from the previous step's estimate instead
   // of dead reckoning (off: dead reckoning, as the reference code).
   bool warm_start = false;
+  // A bound on a cluster's links (the cost of Algorithm 1 on it grows with them): a full cluster
+  // takes no more, and the next link starts a new cluster. 0: unbounded (the paper).
+  int max_cluster_size = 0;
   OptimizerOptions optimizer;
 
   // The paper's tests as written: every "beyond the paper" rule above switched off.

@@ -5,7 +5,10 @@
 
 namespace irrr {
 
-LoopClusterer::LoopClusterer(double time_gap) : time_gap_(time_gap) { IRRR_CHECK(time_gap >= 0.0); }
+LoopClusterer::LoopClusterer(double time_gap, int max_size)
+    : time_gap_(time_gap), max_size_(max_size) {
+  IRRR_CHECK(time_gap >= 0.0 && max_size >= 0);
+}
 
 int LoopClusterer::AddLink(
     int link_id, int session_1, double stamp_1, int session_2, double stamp_2) {
@@ -21,6 +24,7 @@ int LoopClusterer::AddLink(
   for (int index : open_) {  // ascending: the oldest fitting cluster wins
     const LoopCluster& c = clusters_[index];
     if (c.session_a != session_a || c.session_b != session_b) continue;
+    if (max_size_ > 0 && static_cast<int>(c.links.size()) >= max_size_) continue;  // full
     for (size_t m = 0; m < c.links.size(); ++m) {
       if (std::abs(t_a - c.stamps_a[m]) <= time_gap_ &&
           std::abs(t_b - c.stamps_b[m]) <= time_gap_) {

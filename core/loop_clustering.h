@@ -35,7 +35,9 @@ struct LoopCluster {
 class LoopClusterer {
  public:
   // `time_gap` is t_g, in the units of the stamps (seconds, or poses for files); must be >= 0.
-  explicit LoopClusterer(double time_gap);
+  // `max_size` > 0 bounds a cluster's links: a full cluster takes no more, and a link that would
+  // have joined it joins another or starts a new one (0: unbounded, the paper's rule).
+  explicit LoopClusterer(double time_gap, int max_size = 0);
 
   // Adds link `link_id` between (session_1, stamp_1) and (session_2, stamp_2); returns the index of
   // the cluster it joined or started.
@@ -64,6 +66,7 @@ class LoopClusterer {
   std::vector<int> CloseDue();
 
   double time_gap_;
+  int max_size_;
   std::vector<LoopCluster> clusters_;
   std::vector<int> open_;  // indices of open clusters, ascending
   std::vector<SessionClock> clocks_;

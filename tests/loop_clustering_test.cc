@@ -22,6 +22,19 @@ TEST_CASE("Links near an open cluster's members join it (eq. 6)", "[loop_cluster
   CHECK(clusterer.cluster(0).newest_b == 36.0);
 }
 
+TEST_CASE("A full cluster (max_size) takes no more links; the next starts a new one",
+          "[loop_clustering]") {
+  LoopClusterer clusterer(kGap, 3);
+  for (int k = 0; k < 3; ++k) CHECK(clusterer.AddLink(k, 0, 100.0 + k, 0, 20.0 + k) == 0);
+  CHECK(clusterer.AddLink(3, 0, 103.0, 0, 23.0) == 1);  // would join cluster 0, which is full
+  CHECK(clusterer.AddLink(4, 0, 104.0, 0, 24.0) == 1);
+  CHECK(clusterer.cluster(0).links == std::vector<int>{0, 1, 2});
+  CHECK(clusterer.cluster(1).links == std::vector<int>{3, 4});
+  // Unbounded (the paper): all five in one.
+  LoopClusterer unbounded(kGap);
+  for (int k = 0; k < 5; ++k) CHECK(unbounded.AddLink(k, 0, 100.0 + k, 0, 20.0 + k) == 0);
+}
+
 TEST_CASE("Links are oriented, so either direction lands in the same cluster",
           "[loop_clustering]") {
   LoopClusterer clusterer(kGap);
