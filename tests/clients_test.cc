@@ -100,6 +100,7 @@ TEST_CASE("Every key of the irrr section is read into its field", "[config]") {
       {"retry_within_step", false},
       {"local_problems", false},
       {"warm_start", true},
+      {"max_cluster_size", 40},
       {"optimizer",
        {{"algorithm", "levenberg_marquardt"},
         {"max_iterations", 7},
@@ -120,6 +121,7 @@ TEST_CASE("Every key of the irrr section is read into its field", "[config]") {
   CHECK_FALSE(options.require_each_cluster_consistent);
   CHECK_FALSE(options.prune_failing_clusters);
   CHECK(options.elimination_lookahead == 1);
+  CHECK(options.max_cluster_size == 40);
   CHECK_FALSE(options.split_failing_links);
   CHECK_FALSE(options.settle_undecided);
   CHECK_FALSE(options.revive_opponents);
