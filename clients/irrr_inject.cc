@@ -58,7 +58,7 @@ struct Arguments {
 class StatusWatcher {
  public:
   void OnStatus(const lcm::ReceiveBuffer* buffer, const std::string&) {
-    if (status.decode(buffer->data, 0, static_cast<int>(buffer->data_size)) < 0) return;
+    if (!DecodeMessage(buffer->data, static_cast<int>(buffer->data_size), &status)) return;
     heard = true;
     if (status.start_utime != start_utime) {
       // A daemon (re)started: only what this run has taken counts; after a crash that is what
@@ -108,7 +108,7 @@ class Resender {
 
   void OnRequest(const lcm::ReceiveBuffer* buffer, const std::string&) {
     resync_request_t request;
-    if (request.decode(buffer->data, 0, static_cast<int>(buffer->data_size)) < 0) return;
+    if (!DecodeMessage(buffer->data, static_cast<int>(buffer->data_size), &request)) return;
     const MessageSequencer* sender = fleet_->Find(request.sender);
     if (sender == nullptr) return;
     ++requests;

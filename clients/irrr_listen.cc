@@ -272,7 +272,7 @@ class Listener {
 
   template <class Message>
   static bool Decode(const lcm::ReceiveBuffer* b, Message* m) {
-    return m->decode(b->data, 0, static_cast<int>(b->data_size)) >= 0;
+    return DecodeMessage(b->data, static_cast<int>(b->data_size), m);
   }
 
   void Complete(int64_t id) {

@@ -62,9 +62,9 @@ JournalRecord::Kind JournalKind(Input::Kind kind) {
 }
 
 // Decodes a message of `kind` into `input` (false: it does not decode). decode() checks the
-// fingerprint, the lengths and the array sizes.
+// fingerprint, the lengths and the array sizes; DecodeMessage catches what it throws.
 bool DecodeInput(JournalRecord::Kind kind, const uint8_t* data, int size, Input* input) {
-  auto decode = [&](auto* message) { return message->decode(data, 0, size) == size; };
+  auto decode = [&](auto* message) { return DecodeMessage(data, size, message); };
   switch (kind) {
     case JournalRecord::kKeyframe:
       input->kind = Input::Kind::kKeyframe;
@@ -1119,7 +1119,7 @@ bool Service::Receive(const std::string& channel, const uint8_t* data, int size)
   const DaemonChannels& ch = st.daemon.channels;
   if (channel == ch.solution_request) {
     solution_request_t request;
-    if (request.decode(data, 0, size) != size) return false;
+    if (!DecodeMessage(data, size, &request)) return false;
     spdlog::debug("\"{}\" asks for the whole solution ({})", request.header.sender, request.reason);
     st.solution_requested = true;
     WakeWorker();

@@ -7,6 +7,7 @@
 // clients, so that both ends agree on one layout.
 
 #include <cstdint>
+#include <exception>
 #include <string>
 #include <vector>
 
@@ -55,6 +56,18 @@ std::vector<uint8_t> EncodeMessage(const Message& message) {
   std::vector<uint8_t> bytes(message.getEncodedSize());
   message.encode(bytes.data(), 0, static_cast<int>(bytes.size()));
   return bytes;
+}
+
+// Decodes a whole message (false: it does not decode, or bytes are left over). The C++ that
+// Debian's lcm-gen 1.3.1 generates throws from std::string and std::vector on some corrupt
+// lengths and counts; that is caught here, so a bad datagram is only a bad datagram.
+template <class Message>
+bool DecodeMessage(const void* data, int size, Message* message) {
+  try {
+    return message->decode(data, 0, size) == size;
+  } catch (const std::exception&) {
+    return false;
+  }
 }
 
 // Microseconds since the Unix epoch, now.

@@ -524,6 +524,13 @@ TEST_CASE("Every kind of bad input is answered on the error channel and nothing 
     raw("truncated message", ch.loop, truncated);
   }
   raw("a keyframe on the loop channel", ch.loop, EncodeMessage(Keyframe(0, 5)));
+  // String lengths that lcm-gen 1.3.1's decoder turned into an exception or an overflow (found
+  // by tests/fuzz): header.sender's int32 length follows the fingerprint, utime and seq.
+  for (const uint32_t length : {0u, 0x80000000u}) {
+    std::vector<uint8_t> bytes = EncodeMessage(Keyframe(0, 5));
+    for (int k = 0; k < 4; ++k) bytes[24 + k] = static_cast<uint8_t>(length >> (24 - 8 * k));
+    raw(length == 0 ? "a string of length 0" : "a string of length INT_MIN", ch.keyframe, bytes);
+  }
   raw("message over max_message_bytes", ch.keyframe, std::vector<uint8_t>(5000, 0));
   REQUIRE(bad.size() >= 30);
   // Not errors: inputs that refer to keyframes not received yet wait for them.
@@ -563,7 +570,7 @@ TEST_CASE("Every kind of bad input is answered on the error channel and nothing 
   CHECK(answered == static_cast<int>(bad.size()));
   const status_t status = service.CurrentStatus();
   CHECK(status.n_errors == static_cast<int64_t>(bad.size()));
-  CHECK(status.n_undecodable == 4);
+  CHECK(status.n_undecodable == 6);
   REQUIRE(status.n_senders == 1);
   CHECK(status.senders[0].sender == "robot");
   CHECK(status.senders[0].gaps == 0);  // rejected inputs take their seq: nothing is re-requested
