@@ -1029,56 +1029,34 @@ struct Service::State {
   void Refresh() {
     last_refresh = std::chrono::steady_clock::now();
     if (se2.dirty.empty() && se3.dirty.empty()) return;
-    correction_t c{};
-    c.solution_id = ++solution_id;
-    c.daemon_start_utime = start_utime;
-    c.step = -1;
-    c.cluster = -1;
-    c.closed_utime = NowUtime();
-    std::vector<verdicts_t> verdicts;
-    std::vector<solution_t> chunks;
-    int state_changes = 0;
-    Describe(se2,
-             {se2.dirty.begin(), se2.dirty.end()},
-             Detail::kFull,
-             &c,
-             &verdicts,
-             &chunks,
-             &state_changes);
-    Describe(se3,
-             {se3.dirty.begin(), se3.dirty.end()},
-             Detail::kFull,
-             &c,
-             &verdicts,
-             &chunks,
-             &state_changes);
-    se2.dirty.clear();
-    se3.dirty.clear();
-    PublishAll(&c, &verdicts, &chunks);
-    std::lock_guard<std::mutex> lock(stats_mutex);
-    stats.solution_id = c.solution_id;
+    PublishWhole(Detail::kFull);
   }
 
   // A complete correction: every session's poses and every verdict (complete = 1), for a consumer
   // that asked (solution_request_t) or after recovery from the journal.
-  void PublishComplete() {
+  void PublishComplete() { PublishWhole(Detail::kComplete); }
+
+  // kFull: the sessions re-estimated since the last full correction; kComplete: every session.
+  void PublishWhole(Detail detail) {
     correction_t c{};
     c.solution_id = ++solution_id;
     c.daemon_start_utime = start_utime;
     c.step = -1;
     c.cluster = -1;
     c.closed_utime = NowUtime();
-    c.complete = 1;
+    c.complete = detail == Detail::kComplete ? 1 : 0;
     std::vector<verdicts_t> verdicts;
     std::vector<solution_t> chunks;
     int state_changes = 0;
-    auto all = [](const auto& engine) {
+    auto sessions_of = [detail](const auto& engine) {
+      if (detail != Detail::kComplete)
+        return std::vector<int>(engine.dirty.begin(), engine.dirty.end());
       std::vector<int> indices(engine.sessions.size());
       for (size_t k = 0; k < indices.size(); ++k) indices[k] = static_cast<int>(k);
       return indices;
     };
-    Describe(se2, all(se2), Detail::kComplete, &c, &verdicts, &chunks, &state_changes);
-    Describe(se3, all(se3), Detail::kComplete, &c, &verdicts, &chunks, &state_changes);
+    Describe(se2, sessions_of(se2), detail, &c, &verdicts, &chunks, &state_changes);
+    Describe(se3, sessions_of(se3), detail, &c, &verdicts, &chunks, &state_changes);
     se2.dirty.clear();
     se3.dirty.clear();
     PublishAll(&c, &verdicts, &chunks);

@@ -544,6 +544,25 @@ TEST_CASE("A service that dies mid-stream restarts from its journal and ends as 
   }
 }
 
+// A first keyframe (key 0) of (robot, session) from `sender` with header.seq `seq`, applied.
+void SendFirstKeyframe(Service* service,
+                       const DaemonChannels& ch,
+                       const std::string& sender,
+                       int32_t robot,
+                       int32_t session,
+                       int64_t seq) {
+  keyframe_t k{};
+  k.header = {0, seq, sender};
+  k.robot_id = robot;
+  k.session_id = session;
+  k.key = 0;
+  k.dim = keyframe_t::DIM_SE2;
+  k.odom_pose = PoseToWire(Pose2());
+  const std::vector<uint8_t> bytes = EncodeMessage(k);
+  service->Receive(ch.keyframe, bytes.data(), static_cast<int>(bytes.size()));
+  service->ProcessQueued(std::chrono::milliseconds(0));
+}
+
 TEST_CASE("The allow-list ignores other senders and robots, and counts them", "[reliability]") {
   Sink sink;
   DaemonOptions daemon;
@@ -551,15 +570,7 @@ TEST_CASE("The allow-list ignores other senders and robots, and counts them", "[
   daemon.allowed_robots = {3};
   Service service(daemon, CaseOptions(), &sink);
   auto send = [&](const std::string& sender, int32_t robot, int64_t seq) {
-    keyframe_t k{};
-    k.header = {0, seq, sender};
-    k.robot_id = robot;
-    k.key = 0;
-    k.dim = keyframe_t::DIM_SE2;
-    k.odom_pose = PoseToWire(Pose2());
-    const std::vector<uint8_t> bytes = EncodeMessage(k);
-    service.Receive(daemon.channels.keyframe, bytes.data(), static_cast<int>(bytes.size()));
-    service.ProcessQueued(std::chrono::milliseconds(0));
+    SendFirstKeyframe(&service, daemon.channels, sender, robot, 0, seq);
   };
   send("robot3/frontend", 3, 0);
   send("intruder", 3, 0);
@@ -581,15 +592,7 @@ TEST_CASE("At a limit the status says DEGRADED and why, and nothing grows past i
   daemon.limits.max_held = 5;
   Service service(daemon, CaseOptions(), &sink);
   auto keyframe = [&](const std::string& sender, int32_t session, int64_t seq) {
-    keyframe_t k{};
-    k.header = {0, seq, sender};
-    k.session_id = session;
-    k.key = 0;
-    k.dim = keyframe_t::DIM_SE2;
-    k.odom_pose = PoseToWire(Pose2());
-    const std::vector<uint8_t> bytes = EncodeMessage(k);
-    service.Receive(daemon.channels.keyframe, bytes.data(), static_cast<int>(bytes.size()));
-    service.ProcessQueued(std::chrono::milliseconds(0));
+    SendFirstKeyframe(&service, daemon.channels, sender, 0, session, seq);
   };
   keyframe("a", 0, 0);
   service.PublishStatus(status_t::RUNNING);
