@@ -46,7 +46,8 @@ RUN apt-get update \
  && rm -rf /var/lib/apt/lists/* \
  && groupadd --gid 10001 irrrd \
  && useradd --uid 10001 --gid irrrd --no-create-home --home-dir /nonexistent \
-      --shell /usr/sbin/nologin irrrd
+      --shell /usr/sbin/nologin irrrd \
+ && install -d -o 10001 -g 10001 /var/lib/irrrd
 # Only bin/: irrrd plus the installed clients (irrr-inject, irrr-listen, ...) for checks in place.
 COPY --from=build /opt/irrr/bin/ /usr/local/bin/
 COPY config/irrrd.json /etc/irrrd/irrrd.json
@@ -55,4 +56,7 @@ USER 10001:10001
 # irrrd handles SIGTERM/SIGINT/SIGHUP itself (signalfd) and starts no child processes, so it can
 # run as PID 1 without an init.
 STOPSIGNAL SIGTERM
-ENTRYPOINT ["/usr/local/bin/irrrd", "--config", "/etc/irrrd/irrrd.json"]
+# The journal: mount a volume here (docker run -v irrrd-state:/var/lib/irrrd ...) so that a
+# restarted container rebuilds the state it had.
+VOLUME /var/lib/irrrd
+ENTRYPOINT ["/usr/local/bin/irrrd", "--config", "/etc/irrrd/irrrd.json", "--journal", "/var/lib/irrrd/journal"]
