@@ -37,6 +37,7 @@
 #include "irrr/resync_request_t.hpp"
 #include "irrr/solution_t.hpp"
 #include "irrr/verdicts_t.hpp"
+#include "tests/recording_sink.h"
 #include "tests/test_files.h"
 
 namespace irrr {
@@ -89,32 +90,6 @@ TEST_CASE("Daemon configuration errors name the key", "[daemon][config]") {
 }
 
 // ---- The service in-process ----
-
-// Every message the service publishes, by channel.
-class RecordingSink : public MessageSink {
- public:
-  void Send(const std::string& channel, const std::vector<uint8_t>& bytes) override {
-    std::lock_guard<std::mutex> lock(mutex_);
-    messages[channel].push_back(bytes);
-  }
-  template <class Message>
-  std::vector<Message> Decoded(const std::string& channel) const {
-    std::vector<Message> out;
-    const auto it = messages.find(channel);
-    if (it == messages.end()) return out;
-    for (const std::vector<uint8_t>& bytes : it->second) {
-      Message m;
-      REQUIRE(m.decode(bytes.data(), 0, static_cast<int>(bytes.size())) ==
-              static_cast<int>(bytes.size()));
-      out.push_back(m);
-    }
-    return out;
-  }
-  std::map<std::string, std::vector<std::vector<uint8_t>>> messages;
-
- private:
-  std::mutex mutex_;
-};
 
 // Publishes into one memq:// LCM instance (the only kind that sees its own messages).
 class LcmSink : public MessageSink {

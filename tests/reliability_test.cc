@@ -31,6 +31,7 @@
 #include "irrr/solution_request_t.hpp"
 #include "irrr/solution_t.hpp"
 #include "irrr/verdicts_t.hpp"
+#include "tests/recording_sink.h"
 #include "tests/test_files.h"
 
 namespace irrr {
@@ -232,34 +233,6 @@ TEST_CASE("Journal: records come back as written; a torn or corrupt tail is drop
 
 // ---- The service under loss, restarts, limits ----
 
-// Every message the service publishes, by channel, read incrementally.
-class Sink : public MessageSink {
- public:
-  void Send(const std::string& channel, const std::vector<uint8_t>& bytes) override {
-    std::lock_guard<std::mutex> lock(mutex_);
-    messages_[channel].push_back(bytes);
-  }
-  // Messages on `channel` not returned before.
-  template <class Message>
-  std::vector<Message> New(const std::string& channel) {
-    std::lock_guard<std::mutex> lock(mutex_);
-    std::vector<Message> out;
-    const std::vector<std::vector<uint8_t>>& all = messages_[channel];
-    for (size_t& k = read_[channel]; k < all.size(); ++k) {
-      Message m;
-      REQUIRE(m.decode(all[k].data(), 0, static_cast<int>(all[k].size())) ==
-              static_cast<int>(all[k].size()));
-      out.push_back(m);
-    }
-    return out;
-  }
-
- private:
-  std::mutex mutex_;
-  std::map<std::string, std::vector<std::vector<uint8_t>>> messages_;
-  std::map<std::string, size_t> read_;
-};
-
 // A two-session Intel prefix with grouped wrong inter-session loops (MakeTwoSessionIntel), its
 // messages as irrr-inject sends them, and the undisturbed answer.
 struct Case {
@@ -333,7 +306,8 @@ void CheckAnswer(const Service& service, const Case& c, double tolerance) {
 // `reorder`.
 class LossyProducer {
  public:
-  LossyProducer(Service* service, Sink* sink, const DaemonChannels& ch, double loss, uint32_t seed)
+  LossyProducer(
+      Service* service, RecordingSink* sink, const DaemonChannels& ch, double loss, uint32_t seed)
       : service_(service),
         sink_(sink),
         ch_(ch),
@@ -410,7 +384,7 @@ class LossyProducer {
   }
 
   Service* service_;
-  Sink* sink_;
+  RecordingSink* sink_;
   DaemonChannels ch_;
   MessageSequencer sequencer_;
   double loss_;
@@ -429,7 +403,7 @@ TEST_CASE("Under 10% loss, duplicates and reordering the service decides as with
           "[reliability]") {
   const Case& c = IntelCase();
   for (uint32_t seed : {1u, 2u}) {
-    Sink sink;
+    RecordingSink sink;
     const DaemonOptions daemon = FastResync();
     Service service(daemon, CaseOptions(), &sink);
     LossyProducer producer(&service, &sink, daemon.channels, 0.10, seed);
@@ -473,7 +447,7 @@ TEST_CASE("A service that dies mid-stream restarts from its journal and ends as 
   std::vector<HypothesisDecision> before;
   std::vector<Service::SessionEstimate> estimate_before;
   for (size_t death = 0; death <= deaths.size(); ++death) {
-    Sink sink;
+    RecordingSink sink;
     Service service(daemon, CaseOptions(), &sink);
     Journal journal;
     JournalRecovery recovery;
@@ -564,7 +538,7 @@ void SendFirstKeyframe(Service* service,
 }
 
 TEST_CASE("The allow-list ignores other senders and robots, and counts them", "[reliability]") {
-  Sink sink;
+  RecordingSink sink;
   DaemonOptions daemon;
   daemon.allowed_senders = {"robot3/*", "base"};
   daemon.allowed_robots = {3};
@@ -586,7 +560,7 @@ TEST_CASE("The allow-list ignores other senders and robots, and counts them", "[
 
 TEST_CASE("At a limit the status says DEGRADED and why, and nothing grows past it",
           "[reliability]") {
-  Sink sink;
+  RecordingSink sink;
   DaemonOptions daemon;
   daemon.limits.max_sessions = 2;
   daemon.limits.max_held = 5;
@@ -622,7 +596,7 @@ TEST_CASE("At a limit the status says DEGRADED and why, and nothing grows past i
 TEST_CASE("A consumer's solution request is answered with every pose and every verdict",
           "[reliability]") {
   const Case& c = IntelCase();
-  Sink sink;
+  RecordingSink sink;
   const DaemonOptions daemon = FastResync();
   Service service(daemon, CaseOptions(), &sink);
   MessageSequencer producer("robot", daemon.channels);
