@@ -316,7 +316,6 @@ struct Service::State {
   // Receiving thread: each sender's inputs back in its order, and the senders ignored.
   mutable std::mutex sequencer_mutex;
   Sequencer<Input> sequencer;
-  std::set<std::string> warned_senders;  // warned once about duplicates or the allow-list
   std::atomic<bool> solution_requested{false};
 
   // Receiving thread -> worker.
@@ -443,12 +442,12 @@ struct Service::State {
         sender, seq, std::move(input), std::chrono::steady_clock::now(), [this](Input&& in) {
           return Take(std::move(in));
         });
-    if (outcome == Sequencer<Input>::Outcome::kDuplicate && warned_senders.insert(sender).second) {
-      spdlog::warn(
-          "\"{}\" sent seq {} again (a resend, or a producer that does not count "
-          "header.seq from 0 up): duplicates are ignored",
-          sender,
-          seq);
+    if (outcome == Sequencer<Input>::Outcome::kDuplicate) {
+      WarnOnce("duplicate",
+               sender,
+               "\"" + sender + "\" sent seq " + std::to_string(seq) +
+                   " again (a resend, or a producer that does not count header.seq from 0 up): "
+                   "duplicates are ignored");
     }
     if (outcome == Sequencer<Input>::Outcome::kHoldFull) {
       Rejection r = about;
@@ -497,13 +496,18 @@ struct Service::State {
       std::lock_guard<std::mutex> lock(stats_mutex);
       ++stats.n_ignored;
     }
+    WarnOnce("ignored", sender, "ignoring input from \"" + sender + "\": it " + why);
+  }
+
+  // Logs `text` the first time `sender` does something of `kind` (at most kMaxWarned pairs are
+  // remembered, so that a flood of sender names cannot grow this without bound).
+  void WarnOnce(const char* kind, const std::string& sender, const std::string& text) {
+    constexpr size_t kMaxWarned = 1000;
     std::lock_guard<std::mutex> lock(warned_mutex);
-    if (warned_ignored.size() < 1000 && warned_ignored.insert(sender).second) {
-      spdlog::warn("ignoring input from \"{}\": it {}", sender, why);
-    }
+    if (warned.size() < kMaxWarned && warned.emplace(kind, sender).second) spdlog::warn(text);
   }
   std::mutex warned_mutex;
-  std::set<std::string> warned_ignored;
+  std::set<std::pair<std::string, std::string>> warned;  // (kind, sender)
 
   // Re-requests open gaps and gives up on old ones (the receiving thread, every few ms).
   void Tick() {
