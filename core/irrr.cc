@@ -936,6 +936,100 @@ int Irrr<Pose>::num_steps() const {
 }
 
 template <class Pose>
+IrrrStepState<Pose> Irrr<Pose>::StepState() const {
+  const State& st = *state_;
+  const Consensus<Pose>& c = st.consensus;
+  IrrrStepState<Pose> out;
+  out.decisions = st.decisions;
+  out.estimate = st.estimate;
+  out.clusters.resize(c.links.size());
+  for (size_t k = 0; k < c.links.size(); ++k) {
+    typename IrrrStepState<Pose>::Cluster& cluster = out.clusters[k];
+    cluster.links = c.links[k];
+    cluster.session_a = c.session_a[k];
+    cluster.session_b = c.session_b[k];
+    cluster.in_r = c.in_r[k] != 0;
+    cluster.in_good = c.in_good[k] != 0;
+    cluster.in_reject = c.in_reject[k] != 0;
+    cluster.opponents = c.opponents[k];
+  }
+  out.cluster_of = st.consensus_of;
+  out.steps = c.step;
+  out.judged = static_cast<int>(st.next_closed);
+  return out;
+}
+
+template <class Pose>
+Status Irrr<Pose>::RestoreStepState(IrrrStepState<Pose> state) {
+  State& st = *state_;
+  const int num_clusters = static_cast<int>(state.clusters.size());
+  const int num_sessions = st.graph.num_sessions();
+  auto fits = [](int index, int size) { return index >= 0 && index < size; };
+  if (state.decisions.size() != static_cast<size_t>(st.graph.num_edges()) ||
+      state.estimate.size() != static_cast<size_t>(st.graph.num_vertices())) {
+    return Status::Error("the step state has " + std::to_string(state.decisions.size()) +
+                         " edges and " + std::to_string(state.estimate.size()) +
+                         " poses, the graph " + std::to_string(st.graph.num_edges()) + " and " +
+                         std::to_string(st.graph.num_vertices()));
+  }
+  if (state.cluster_of.size() != static_cast<size_t>(st.clusterer.num_clusters())) {
+    return Status::Error("the step state maps " + std::to_string(state.cluster_of.size()) +
+                         " clusters, the clusterer has " +
+                         std::to_string(st.clusterer.num_clusters()));
+  }
+  if (state.judged < 0 || static_cast<size_t>(state.judged) > st.closed.size() || state.steps < 0) {
+    return Status::Error("the step state has judged " + std::to_string(state.judged) +
+                         " clusters, but only " + std::to_string(st.closed.size()) + " closed");
+  }
+  for (int k : state.cluster_of) {
+    if (!fits(k, num_clusters)) return Status::Error("the step state maps to an unknown cluster");
+  }
+  for (const LoopDecision& d : state.decisions) {
+    if (d.cluster != -1 && !fits(d.cluster, num_clusters)) {
+      return Status::Error("a decision names an unknown cluster");
+    }
+  }
+  for (const Pose& pose : state.estimate) {
+    if (!pose.IsFinite()) return Status::Error("the step state's estimate is not finite");
+  }
+  for (const auto& cluster : state.clusters) {
+    if (!fits(cluster.session_a, num_sessions) || !fits(cluster.session_b, num_sessions)) {
+      return Status::Error("a cluster names an unknown session");
+    }
+    for (int e : cluster.links) {
+      if (!fits(e, st.graph.num_edges()) || st.graph.edge(e).kind != EdgeKind::kLoop) {
+        return Status::Error("a cluster holds an edge that is not a loop of the graph");
+      }
+    }
+    for (int k : cluster.opponents) {
+      if (!fits(k, num_clusters)) return Status::Error("a cluster names an unknown opponent");
+    }
+  }
+  Consensus<Pose>& c = st.consensus;
+  c.links.clear();
+  c.session_a.clear();
+  c.session_b.clear();
+  c.in_r.clear();
+  c.in_good.clear();
+  c.in_reject.clear();
+  c.opponents.clear();
+  for (auto& cluster : state.clusters) {
+    const int k = c.AddCluster(cluster.session_a, cluster.session_b);
+    c.links[k] = std::move(cluster.links);
+    c.in_r[k] = cluster.in_r;
+    c.in_good[k] = cluster.in_good;
+    c.in_reject[k] = cluster.in_reject;
+    c.opponents[k] = std::move(cluster.opponents);
+  }
+  c.step = state.steps;
+  st.decisions = std::move(state.decisions);
+  st.estimate = std::move(state.estimate);
+  st.consensus_of = std::move(state.cluster_of);
+  st.next_closed = static_cast<size_t>(state.judged);
+  return Status::Ok();
+}
+
+template <class Pose>
 std::vector<int> Irrr<Pose>::Components() const {
   const State& st = *state_;
   std::vector<char> active(st.graph.num_edges(), 0);

@@ -110,6 +110,28 @@ struct LoopDecision {
   double threshold = std::numeric_limits<double>::quiet_NaN();
 };
 
+// What an Irrr's steps have computed. Everything else an Irrr holds (graph, clusters, dead
+// reckoning) follows from its inputs alone, so an Irrr fed the same inputs without running their
+// steps and then given this state is the Irrr that ran them, bit for bit (the daemon's snapshots).
+template <class Pose>
+struct IrrrStepState {
+  struct Cluster {
+    std::vector<int> links;  // graph edge indices still in the cluster
+    int session_a = -1;
+    int session_b = -1;
+    bool in_r = false;  // passed Algorithm 1
+    bool in_good = false;
+    bool in_reject = false;
+    std::vector<int> opponents;  // clusters eliminated while this good one was inconsistent too
+  };
+  std::vector<LoopDecision> decisions;  // per graph edge
+  std::vector<Pose> estimate;           // per vertex
+  std::vector<Cluster> clusters;        // the judged clusters (splits included)
+  std::vector<int> cluster_of;          // per clusterer cluster: its index in `clusters`
+  int steps = 0;                        // steps run
+  int judged = 0;                       // closed clusters judged so far, in closing order
+};
+
 struct StepResult {
   int step = -1;
   int cluster = -1;                // the cluster that triggered it
@@ -159,6 +181,12 @@ class Irrr {
   // Component of every session under the current good set (numbered by earliest session).
   std::vector<int> Components() const;
   int num_steps() const;
+
+  // What the steps have computed, and its restoration into an Irrr that was fed the same inputs
+  // without running their steps. RestoreStepState fails, changing nothing, on a state that does
+  // not fit this Irrr's graph and clusters.
+  IrrrStepState<Pose> StepState() const;
+  Status RestoreStepState(IrrrStepState<Pose> state);
 
   ~Irrr();
   Irrr(const Irrr&) = delete;
