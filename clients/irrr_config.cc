@@ -78,6 +78,7 @@ template <class Visitor>
 void VisitFields(DaemonJournal& journal, Visitor& visit) {
   visit("path", journal.path);
   visit("fsync", journal.fsync);
+  visit("snapshot_every", journal.snapshot_every);
 }
 
 template <class Visitor>
@@ -400,6 +401,7 @@ Status DaemonOptions::Validate() const {
   if (resync.interval_ms < 1 || resync.give_up_ms < resync.interval_ms) {
     return Status::Error("resync: interval_ms must be >= 1 and give_up_ms >= interval_ms");
   }
+  if (journal.snapshot_every < 0) return Status::Error("journal: snapshot_every must be >= 0");
   for (const std::string& sender : allowed_senders) {
     if (sender.empty() || sender.size() > 64) {
       return Status::Error("allowed_senders: \"" + sender + "\" must have 1 to 64 characters");

@@ -84,6 +84,9 @@ enum class JournalSyncPolicy { kNever, kBatch, kAlways };
 struct DaemonJournal {
   std::string path;  // "" = no journal (a restart starts empty)
   JournalSyncPolicy fsync = JournalSyncPolicy::kBatch;
+  // A snapshot of the state ("<path>.snapshot") every this many inputs, so that a restart runs
+  // only the steps of the inputs after it; 0 = none (a restart re-runs every step).
+  int snapshot_every = 10000;
 };
 
 // The daemon's own settings (the "daemon" object of config/irrrd.json).

@@ -7,7 +7,9 @@
 //
 // With a journal (daemon.journal.path), every input taken is appended to it before it is applied,
 // and a start replays it first: after a crash, kill -9 included, the daemon has the state it had,
-// and producers resend what it lost meanwhile (IRRR_RESYNC).
+// and producers resend what it lost meanwhile (IRRR_RESYNC). Snapshots of the state next to it
+// (every daemon.journal.snapshot_every inputs, and at a clean stop) spare a restart the steps
+// they cover.
 // Threads: the main thread receives (LCM and signals, through poll) and publishes the status; a
 // worker applies the inputs and runs the iRRR steps, so that receiving never waits for an
 // optimization. SIGTERM and SIGINT: stop receiving, apply what was received, publish a STOPPING
@@ -270,6 +272,9 @@ int Run(const Arguments& args, const CLI::App& app) {
   stopping = true;
   service.WakeWorker();
   worker.join();
+  if (!daemon.journal.path.empty() && daemon.journal.snapshot_every > 0) {
+    if (Status s = service.WriteSnapshot(); !s.ok()) spdlog::error("snapshot: {}", s.message());
+  }
   const status_t status = service.CurrentStatus();
   spdlog::info(
       "stopped: {} keyframes, {} loop hypotheses ({} accepted, {} rejected or reversed), {} steps, "

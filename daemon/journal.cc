@@ -34,8 +34,11 @@ int64_t GetI64(const uint8_t* p) {
   return static_cast<int64_t>(v);
 }
 
+uint32_t ContinueCrc32(uint32_t crc, const uint8_t* data, size_t size) {
+  return static_cast<uint32_t>(crc32(crc, data, static_cast<uInt>(size)));
+}
 uint32_t Crc32(const uint8_t* data, size_t size) {
-  return static_cast<uint32_t>(crc32(crc32(0L, Z_NULL, 0), data, static_cast<uInt>(size)));
+  return ContinueCrc32(static_cast<uint32_t>(crc32(0L, Z_NULL, 0)), data, size);
 }
 
 Status Errno(const std::string& what) { return Status::Error(what + ": " + std::strerror(errno)); }
@@ -67,6 +70,15 @@ std::vector<uint8_t> EncodeJournalRecord(const JournalRecord& record) {
   PutU32(Crc32(payload.data(), payload.size()), &out);
   out.insert(out.end(), payload.begin(), payload.end());
   return out;
+}
+
+uint32_t JournalCrc(const std::vector<JournalRecord>& records, size_t count) {
+  uint32_t crc = Crc32(nullptr, 0);
+  for (size_t k = 0; k < count && k < records.size(); ++k) {
+    const std::vector<uint8_t> encoded = EncodeJournalRecord(records[k]);
+    crc = ContinueCrc32(crc, encoded.data(), encoded.size());
+  }
+  return crc;
 }
 
 std::vector<JournalRecord> DecodeJournalRecords(const std::vector<uint8_t>& data,
@@ -119,6 +131,8 @@ Status Journal::Open(const std::string& path, JournalSyncPolicy sync, JournalRec
   path_ = path;
   sync_ = sync;
   *recovery = JournalRecovery();
+  records_ = 0;
+  crc_ = Crc32(nullptr, 0);
   fd_ = open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
   if (fd_ < 0) return Errno(path);
   std::vector<uint8_t> data;
@@ -145,6 +159,8 @@ Status Journal::Open(const std::string& path, JournalSyncPolicy sync, JournalRec
   recovery->records =
       DecodeJournalRecords(data, sizeof kMagic, &consumed, &recovery->dropped_reason);
   size_ = static_cast<int64_t>(sizeof kMagic + consumed);
+  records_ = static_cast<int64_t>(recovery->records.size());
+  crc_ = ContinueCrc32(crc_, data.data() + sizeof kMagic, consumed);
   recovery->valid_bytes = size_;
   recovery->dropped_bytes = static_cast<int64_t>(data.size()) - size_;
   if (recovery->dropped_bytes > 0) {
@@ -152,6 +168,20 @@ Status Journal::Open(const std::string& path, JournalSyncPolicy sync, JournalRec
     if (fdatasync(fd_) != 0) return Errno(path + ": fdatasync");
   }
   if (lseek(fd_, size_, SEEK_SET) < 0) return Errno(path + ": lseek");
+  return Status::Ok();
+}
+
+Status Journal::Write(const std::vector<uint8_t>& bytes, int64_t records) {
+  if (Status s = WriteAll(fd_, bytes.data(), bytes.size()); !s.ok()) {
+    // Cut a partial record off again, so that later appends stay readable.
+    if (ftruncate(fd_, size_) != 0 || lseek(fd_, size_, SEEK_SET) < 0) {
+      return Errno(path_ + ": cannot undo a partial write");
+    }
+    return Status::Error(path_ + ": " + s.message());
+  }
+  size_ += static_cast<int64_t>(bytes.size());
+  records_ += records;
+  crc_ = ContinueCrc32(crc_, bytes.data(), bytes.size());
   return Status::Ok();
 }
 
@@ -163,21 +193,13 @@ Status Journal::Append(const std::vector<JournalRecord>& records) {
     const std::vector<uint8_t> encoded = EncodeJournalRecord(r);
     out.insert(out.end(), encoded.begin(), encoded.end());
     if (sync_ == JournalSyncPolicy::kAlways) {
-      if (Status s = WriteAll(fd_, out.data(), out.size()); !s.ok()) return s;
+      if (Status s = Write(out, 1); !s.ok()) return s;
       if (fdatasync(fd_) != 0) return Errno(path_ + ": fdatasync");
-      size_ += static_cast<int64_t>(out.size());
       out.clear();
     }
   }
   if (!out.empty()) {
-    if (Status s = WriteAll(fd_, out.data(), out.size()); !s.ok()) {
-      // Cut a partial record off again, so that later appends stay readable.
-      if (ftruncate(fd_, size_) != 0 || lseek(fd_, size_, SEEK_SET) < 0) {
-        return Errno(path_ + ": cannot undo a partial write");
-      }
-      return Status::Error(path_ + ": " + s.message());
-    }
-    size_ += static_cast<int64_t>(out.size());
+    if (Status s = Write(out, static_cast<int64_t>(records.size())); !s.ok()) return s;
   }
   if (sync_ == JournalSyncPolicy::kBatch && fdatasync(fd_) != 0)
     return Errno(path_ + ": fdatasync");

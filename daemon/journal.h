@@ -53,17 +53,28 @@ class Journal {
   Status Append(const std::vector<JournalRecord>& records);
   int64_t size_bytes() const { return size_; }
   const std::string& path() const { return path_; }
+  // The records it holds, and the CRC-32 of all of them as stored: what names its content for a
+  // snapshot (JournalCrc of the same records).
+  int64_t records() const { return records_; }
+  uint32_t crc() const { return crc_; }
 
  private:
+  // Writes whole records (undoing a partial write), and counts them.
+  Status Write(const std::vector<uint8_t>& bytes, int64_t records);
+
   int fd_ = -1;
   std::string path_;
   JournalSyncPolicy sync_ = JournalSyncPolicy::kBatch;
   int64_t size_ = 0;
+  int64_t records_ = 0;
+  uint32_t crc_ = 0;
 };
 
 // Encodes one record (length, CRC, payload), and decodes the records at the start of `data`
 // (stops at the first incomplete or corrupt one; `*consumed` = bytes of the valid records).
 std::vector<uint8_t> EncodeJournalRecord(const JournalRecord& record);
+// CRC-32 of the first `count` of `records` as a journal stores them (Journal::crc()).
+uint32_t JournalCrc(const std::vector<JournalRecord>& records, size_t count);
 std::vector<JournalRecord> DecodeJournalRecords(const std::vector<uint8_t>& data,
                                                 size_t begin,
                                                 size_t* consumed,

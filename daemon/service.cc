@@ -13,6 +13,7 @@
 #include <spdlog/spdlog.h>
 
 #include "daemon/sequencer.h"
+#include "daemon/snapshot.h"
 #include "daemon/wire.h"
 #include "irrr/correction_t.hpp"
 #include "irrr/error_t.hpp"
@@ -312,6 +313,11 @@ struct Service::State {
   Journal* journal = nullptr;
   // While the journal is replayed at start: nothing is published, old errors are not logged again.
   std::atomic<bool> replaying{false};
+  // Off while the inputs a snapshot covers are fed again: their steps are in the snapshot.
+  bool run_steps = true;
+  std::string snapshot_path;   // "" = no snapshots
+  int64_t snapshot_at = 0;     // journal records the last snapshot covers
+  int64_t snapshot_bytes = 0;  // the last snapshot body's size
 
   // Receiving thread: each sender's inputs back in its order, and the senders ignored.
   mutable std::mutex sequencer_mutex;
@@ -810,6 +816,7 @@ struct Service::State {
           stats.n_parked = static_cast<int32_t>(num_parked);
         }
       }
+      if (!run_steps) continue;
       RunSteps(se2, next.received_utime);
       RunSteps(se3, next.received_utime);
     }
@@ -1068,6 +1075,125 @@ struct Service::State {
     stats.solution_id = c.solution_id;
   }
 
+  // ---- Snapshots (snapshot.h) ----
+
+  // What a snapshot holds besides the engines' step states.
+  struct Snapshot {
+    std::string options;      // the irrr options it was decided under (JSON)
+    int64_t records = 0;      // journal records it covers
+    int64_t journal_crc = 0;  // their CRC (Journal::crc)
+    int64_t solution_id = 0;
+    int64_t steps = 0;            // status_t.n_steps
+    std::vector<int> anchor_se2;  // Engine::anchor
+    std::vector<int> anchor_se3;
+    IrrrStepState<Pose2> se2;
+    IrrrStepState<Pose3> se3;
+  };
+
+  std::string OptionsText() const { return IrrrOptionsToJson(options).dump(); }
+
+  // Worker: the state after the journal's `records` records, whose CRC is `crc`.
+  Status WriteSnapshot(int64_t records, uint32_t crc) {
+    SnapshotWriter w;
+    w.String(OptionsText());
+    w.I64(records);
+    w.I64(crc);
+    w.I64(solution_id);
+    {
+      std::lock_guard<std::mutex> lock(stats_mutex);
+      w.I64(stats.n_steps);
+    }
+    w.Ints(se2.anchor);
+    w.StepState(se2.irrr.StepState());
+    w.Ints(se3.anchor);
+    w.StepState(se3.irrr.StepState());
+    if (Status s = WriteSnapshotFile(snapshot_path, w.bytes(), daemon.journal.fsync); !s.ok()) {
+      return s;
+    }
+    snapshot_at = records;
+    snapshot_bytes = static_cast<int64_t>(w.bytes().size());
+    return Status::Ok();
+  }
+
+  // Reads the snapshot at `path` and checks that it fits `recovery` (the journal it was taken
+  // from, at least as far as it covers) and the current options. False, with the reason in
+  // `why`, when there is none or it cannot be used.
+  bool LoadSnapshot(const std::string& path,
+                    const JournalRecovery& recovery,
+                    Snapshot* out,
+                    std::string* why) const {
+    std::vector<uint8_t> body;
+    bool exists = false;
+    if (Status s = ReadSnapshotFile(path, &body, &exists); !s.ok() || !exists) {
+      *why = s.ok() ? "" : s.message();
+      return false;
+    }
+    SnapshotReader r(body);
+    Snapshot& snap = *out;
+    if (!r.String(&snap.options) || !r.I64(&snap.records) || !r.I64(&snap.journal_crc) ||
+        !r.I64(&snap.solution_id) || !r.I64(&snap.steps) || !r.Ints(&snap.anchor_se2) ||
+        !r.StepState(&snap.se2) || !r.Ints(&snap.anchor_se3) || !r.StepState(&snap.se3) ||
+        !r.at_end()) {
+      *why = path + ": its body does not decode";
+      return false;
+    }
+    if (snap.options != OptionsText()) {
+      *why = path + " was taken under other irrr options: the journal is decided again under these";
+      return false;
+    }
+    if (snap.records < 0 || static_cast<size_t>(snap.records) > recovery.records.size() ||
+        JournalCrc(recovery.records, static_cast<size_t>(snap.records)) !=
+            static_cast<uint32_t>(snap.journal_crc)) {
+      *why = path + " covers " + std::to_string(snap.records) +
+             " journal records that are not those of the journal (" +
+             std::to_string(recovery.records.size()) + " records)";
+      return false;
+    }
+    return true;
+  }
+
+  // After the inputs the snapshot covers were fed without their steps.
+  Status RestoreSnapshot(Snapshot snap) {
+    if (snap.anchor_se2.size() != se2.sessions.size() ||
+        snap.anchor_se3.size() != se3.sessions.size()) {
+      return Status::Error("its sessions are not the journal's");
+    }
+    if (Status s = se2.irrr.RestoreStepState(std::move(snap.se2)); !s.ok()) return s;
+    if (Status s = se3.irrr.RestoreStepState(std::move(snap.se3)); !s.ok()) return s;
+    se2.anchor = std::move(snap.anchor_se2);
+    se3.anchor = std::move(snap.anchor_se3);
+    solution_id = snap.solution_id;
+    snapshot_at = snap.records;
+    std::lock_guard<std::mutex> lock(stats_mutex);
+    stats.n_steps = snap.steps;
+    return Status::Ok();
+  }
+
+  // Feeds journal records [begin, end) through Apply (steps as `run_steps` says); counts the
+  // next seq of every sender in `senders_next`. Returns the records applied.
+  int64_t Replay(const JournalRecovery& recovery,
+                 size_t begin,
+                 size_t end,
+                 const std::string& path,
+                 std::map<std::string, int64_t>* senders_next) {
+    int64_t applied = 0;
+    for (size_t k = begin; k < end; ++k) {
+      const JournalRecord& record = recovery.records[k];
+      Input input;
+      if (!DecodeInput(
+              record.kind, record.bytes.data(), static_cast<int>(record.bytes.size()), &input)) {
+        spdlog::error("journal {}: record {} does not decode (skipped)", path, k);
+        continue;
+      }
+      input.received_utime = record.received_utime;
+      int64_t& next = (*senders_next)[input.header().sender];
+      next = std::max(next, input.header().seq + 1);
+      Apply(input);
+      ++applied;
+    }
+    return applied;
+  }
+
   std::string journal_error;  // the latest journal failure (stats_mutex)
 
   static constexpr std::chrono::milliseconds kRefreshPeriod{250};
@@ -1143,27 +1269,73 @@ bool Service::Receive(const std::string& channel, const uint8_t* data, int size)
 
 void Service::Tick() { state_->Tick(); }
 
-void Service::SetJournal(Journal* journal) { state_->journal = journal; }
+void Service::SetJournal(Journal* journal) {
+  state_->journal = journal;
+  state_->snapshot_path = journal != nullptr && state_->daemon.journal.snapshot_every > 0
+                              ? journal->path() + ".snapshot"
+                              : "";
+}
+
+Status Service::WriteSnapshot() {
+  State& st = *state_;
+  if (st.journal == nullptr || st.snapshot_path.empty()) {
+    return Status::Error("snapshots are off (no journal, or daemon.journal.snapshot_every 0)");
+  }
+  {
+    std::lock_guard<std::mutex> lock(st.stats_mutex);
+    if (!st.journal_error.empty()) {
+      return Status::Error("the journal lacks inputs that were applied (" + st.journal_error +
+                           "): no snapshot would match it");
+    }
+  }
+  const auto start = std::chrono::steady_clock::now();
+  if (Status s = st.WriteSnapshot(st.journal->records(), st.journal->crc()); !s.ok()) return s;
+  spdlog::info(
+      "snapshot of the first {} inputs ({:.2f} MB) written to {} in {:.1f} ms",
+      st.journal->records(),
+      1e-6 * static_cast<double>(st.snapshot_bytes),
+      st.snapshot_path,
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count());
+  return Status::Ok();
+}
 
 void Service::Recover(const JournalRecovery& recovery, const std::string& path) {
-  State& st = *state_;
   const auto start = std::chrono::steady_clock::now();
-  st.replaying = true;
+  state_->replaying = true;
   std::map<std::string, int64_t> next_seq;
-  int64_t applied = 0;
-  for (const JournalRecord& record : recovery.records) {
-    Input input;
-    if (!DecodeInput(
-            record.kind, record.bytes.data(), static_cast<int>(record.bytes.size()), &input)) {
-      spdlog::error("journal {}: record {} does not decode (skipped)", path, applied);
-      continue;
+  // A snapshot spares the steps of the inputs it covers: they are fed without them, then it
+  // is restored; only the inputs after it run their steps.
+  size_t from = 0;
+  std::string snapshot_note;
+  {
+    State::Snapshot snapshot;
+    std::string why;
+    const std::string snapshot_path = path + ".snapshot";
+    if (state_->LoadSnapshot(snapshot_path, recovery, &snapshot, &why)) {
+      const size_t covered = static_cast<size_t>(snapshot.records);
+      state_->run_steps = false;
+      state_->Replay(recovery, 0, covered, path, &next_seq);
+      state_->run_steps = true;
+      if (Status s = state_->RestoreSnapshot(std::move(snapshot)); s.ok()) {
+        from = covered;
+        snapshot_note =
+            "restored the snapshot of the first " + std::to_string(covered) + " inputs, then ";
+      } else {
+        why = snapshot_path + ": " + s.message();
+        // Start again from nothing, without it.
+        const State& st = *state_;
+        auto fresh = std::make_unique<State>(st.daemon, st.options, st.sink);
+        fresh->journal = st.journal;
+        fresh->snapshot_path = st.snapshot_path;
+        state_ = std::move(fresh);
+        state_->replaying = true;
+        next_seq.clear();
+      }
     }
-    input.received_utime = record.received_utime;
-    int64_t& next = next_seq[input.header().sender];
-    next = std::max(next, input.header().seq + 1);
-    st.Apply(input);
-    ++applied;
+    if (!why.empty()) spdlog::warn("snapshot not used: {}", why);
   }
+  State& st = *state_;
+  const int64_t applied = st.Replay(recovery, from, recovery.records.size(), path, &next_seq);
   st.replaying = false;
   {
     std::lock_guard<std::mutex> lock(st.sequencer_mutex);
@@ -1171,8 +1343,8 @@ void Service::Recover(const JournalRecovery& recovery, const std::string& path) 
   }
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  std::string text = "replayed " + std::to_string(applied) + " inputs from " + path + " in " +
-                     fmt::format("{:.2f}", seconds) + " s";
+  std::string text = snapshot_note + "replayed " + std::to_string(applied) + " inputs from " +
+                     path + " in " + fmt::format("{:.2f}", seconds) + " s";
   if (recovery.dropped_bytes > 0) {
     text += "; dropped " + std::to_string(recovery.dropped_bytes) + " bytes at its end (" +
             recovery.dropped_reason + ")";
@@ -1189,7 +1361,7 @@ void Service::Recover(const JournalRecovery& recovery, const std::string& path) 
                st.hypothesis_order.size());
   {
     std::lock_guard<std::mutex> lock(st.stats_mutex);
-    st.stats.n_recovered = applied;
+    st.stats.n_recovered = static_cast<int64_t>(recovery.records.size());
     st.stats.recovery = text;
   }
   st.PublishComplete();
@@ -1225,6 +1397,13 @@ int Service::ProcessQueued(std::chrono::milliseconds wait) {
     }
   }
   if (st.solution_requested.exchange(false)) st.PublishComplete();
+  if (!st.snapshot_path.empty() &&
+      st.journal->records() - st.snapshot_at >= st.daemon.journal.snapshot_every) {
+    if (Status s = WriteSnapshot(); !s.ok()) {
+      spdlog::error("snapshot: {} (a restart replays more of the journal)", s.message());
+      st.snapshot_at = st.journal->records();  // tried; not again before another period
+    }
+  }
   return static_cast<int>(batch.size());
 }
 

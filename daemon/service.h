@@ -69,8 +69,13 @@ class Service {
   // Before the threads start: appends every input to `journal` (not owned; null: none) before
   // applying it, and replays what a journal held (Journal::Open) to rebuild the state it had,
   // publishing nothing but one complete correction at the end; status_t.recovery says so.
+  // With daemon.journal.snapshot_every > 0 the worker also writes a snapshot of the state
+  // (snapshot.h) to "<journal>.snapshot" every that many inputs; Recover uses it when it matches
+  // the journal and the options, and otherwise replays everything (and says why).
   void SetJournal(Journal* journal);
   void Recover(const JournalRecovery& recovery, const std::string& path);
+  // Worker thread (or after it stopped): writes a snapshot now (irrrd does at a clean stop).
+  Status WriteSnapshot();
 
   // Worker thread. Waits up to `wait` for input, then applies everything queued, in arrival
   // order, running and publishing every step that becomes due. Returns the inputs applied.

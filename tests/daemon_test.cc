@@ -906,11 +906,12 @@ TEST_CASE("irrrd: sysexits codes, SIGHUP reloads what can change live, SIGTERM e
 // LCM 1.3.1 keeps the kernel's default receive buffer (~208 kB) unless the URL asks for more.
 const char* const kUdpmUrl = "udpm://239.255.76.67:7667?ttl=0&recv_buf_size=2097152";
 
-std::string WriteDaemonConfig(const std::string& dir) {
+// `daemon_keys`: more keys of the "daemon" object (JSON, starting with a comma).
+std::string WriteDaemonConfig(const std::string& dir, const std::string& daemon_keys = "") {
   const std::string config = dir + "/irrrd.json";
   WriteText(config,
-            std::string("{\"daemon\": {\"lcm_url\": \"") + kUdpmUrl +
-                "\", \"status_hz\": 5}, \"irrr\": {\"cluster_gap\": 10}}\n");
+            std::string("{\"daemon\": {\"lcm_url\": \"") + kUdpmUrl + "\", \"status_hz\": 5" +
+                daemon_keys + "}, \"irrr\": {\"cluster_gap\": 10}}\n");
   return config;
 }
 
@@ -952,7 +953,8 @@ TEST_CASE(
     "[.][udpm]") {
   const std::string dir = TestDirectory("daemon_kill");
   const std::string input = MakeTwoSessionIntel(dir);
-  const std::string config = WriteDaemonConfig(dir);
+  // A snapshot every 50 inputs: most restarts restore one and replay only what followed it.
+  const std::string config = WriteDaemonConfig(dir, ", \"journal\": {\"snapshot_every\": 50}");
   RunBatch(dir, input, config);
   const std::string irrrd =
       std::string(IRRRD) + " --config " + Quoted(config) + " --journal " + Quoted(dir + "/journal");
@@ -960,13 +962,14 @@ TEST_CASE(
                           Quoted(dir + "/listen.csv") + " --output " + Quoted(dir + "/listen.g2o"),
                       dir + "/listen.log");
   std::unique_ptr<Background> daemon = StartDaemon(irrrd, dir + "/daemon0.log");
-  // At 80 messages per second the stream lasts about 9 s.
+  // At 40 messages per second the stream lasts about 17 s; the kills spread over 6 to 13 s of
+  // it, so that later restarts rebuild a state with steps in it.
   Background inject(std::string(IRRR_INJECT) + " " + Quoted(input) + " --config " + Quoted(config) +
-                        " --rate 80 --wait --timeout 300",
+                        " --rate 40 --wait --timeout 300",
                     dir + "/inject.log");
   const unsigned seed = std::random_device()();
   std::mt19937 random(seed);
-  std::uniform_int_distribution<int> pause_ms(100, 400);
+  std::uniform_int_distribution<int> pause_ms(500, 1100);
   constexpr int kKills = 12;
   std::string kills;
   const auto start = std::chrono::steady_clock::now();
@@ -987,13 +990,21 @@ TEST_CASE(
   // Every restart rebuilt the state from the journal (and said so), and the producer resent what
   // the dead daemons had lost.
   int recovered = 0;
+  int from_snapshot = 0;
+  int with_steps = 0;
   for (int k = 1; k <= kKills; ++k) {
-    recovered +=
-        ReadText(dir + "/daemon" + std::to_string(k) + ".log").find("replayed") != std::string::npos
-            ? 1
-            : 0;
+    const std::string log = ReadText(dir + "/daemon" + std::to_string(k) + ".log");
+    recovered += log.find("replayed") != std::string::npos ? 1 : 0;
+    from_snapshot += log.find("restored the snapshot") != std::string::npos ? 1 : 0;
+    with_steps += log.find("restored the snapshot") != std::string::npos &&
+                          log.find("; 0 steps,") == std::string::npos
+                      ? 1
+                      : 0;
   }
   CHECK(recovered == kKills);
+  INFO(from_snapshot << " of " << kKills << " restarts restored a snapshot, " << with_steps
+                     << " of them with steps in it");
+  CHECK(with_steps >= 1);
   CHECK_THAT(ReadText(dir + "/inject.log"), Contains("the daemon is missing 0"));
   CheckSameAsBatch(dir);
 }

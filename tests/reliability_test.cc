@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <map>
 #include <mutex>
@@ -24,6 +25,7 @@
 #include "daemon/journal.h"
 #include "daemon/sequencer.h"
 #include "daemon/service.h"
+#include "daemon/snapshot.h"
 #include "daemon/wire.h"
 #include "irrr/correction_t.hpp"
 #include "irrr/error_t.hpp"
@@ -427,13 +429,50 @@ TEST_CASE("Under 10% loss, duplicates and reordering the service decides as with
   }
 }
 
+// The state it had: the same decisions and, bit for bit, the same estimate.
+void CheckSameState(const std::vector<HypothesisDecision>& now,
+                    const std::vector<Service::SessionEstimate>& estimate,
+                    const std::vector<HypothesisDecision>& before,
+                    const std::vector<Service::SessionEstimate>& estimate_before) {
+  REQUIRE(now.size() == before.size());
+  for (size_t k = 0; k < now.size(); ++k) {
+    CHECK(now[k].hypothesis_id == before[k].hypothesis_id);
+    CHECK(now[k].decision.state == before[k].decision.state);
+    CHECK(now[k].decision.step == before[k].decision.step);
+    CHECK(now[k].decision.cluster == before[k].decision.cluster);
+    CHECK((now[k].decision.chi2 == before[k].decision.chi2 ||
+           (std::isnan(now[k].decision.chi2) && std::isnan(before[k].decision.chi2))));
+  }
+  REQUIRE(estimate.size() == estimate_before.size());
+  for (size_t s = 0; s < estimate.size(); ++s) {
+    REQUIRE(estimate[s].poses.size() == estimate_before[s].poses.size());
+    for (size_t k = 0; k < estimate[s].poses.size(); ++k) {
+      for (int i = 0; i < 3; ++i)
+        CHECK(estimate[s].poses[k].t[i] == estimate_before[s].poses[k].t[i]);
+      for (int i = 0; i < 4; ++i)
+        CHECK(estimate[s].poses[k].q[i] == estimate_before[s].poses[k].q[i]);
+    }
+  }
+}
+
+void CheckSameState(const Service& service,
+                    const std::vector<HypothesisDecision>& before,
+                    const std::vector<Service::SessionEstimate>& estimate_before) {
+  CheckSameState(service.Decisions(), service.Estimates(), before, estimate_before);
+}
+
 TEST_CASE("A service that dies mid-stream restarts from its journal and ends as if it had not",
           "[reliability]") {
   const Case& c = IntelCase();
+  // Without snapshots a restart re-runs every step; with them only the steps after the last one.
+  const int snapshot_every = GENERATE(0, 40);
+  INFO("daemon.journal.snapshot_every " << snapshot_every);
   const std::string dir = TestDirectory("reliability_restart");
   const std::string path = dir + "/journal";
   std::remove(path.c_str());
-  const DaemonOptions daemon = FastResync();
+  std::remove((path + ".snapshot").c_str());
+  DaemonOptions daemon = FastResync();
+  daemon.journal.snapshot_every = snapshot_every;
   MessageSequencer producer("robot", daemon.channels);
   std::vector<MessageSequencer::Encoded> encoded;
   for (const ReplayMessage& m : c.messages) encoded.push_back(producer.Encode(m, NowUtime()));
@@ -444,6 +483,7 @@ TEST_CASE("A service that dies mid-stream restarts from its journal and ends as 
   for (int k = 0; k < 6; ++k) deaths.push_back(1 + random() % (encoded.size() - 1));
   std::sort(deaths.begin(), deaths.end());
   size_t next = 0;
+  int restored_from_snapshot = 0;
   std::vector<HypothesisDecision> before;
   std::vector<Service::SessionEstimate> estimate_before;
   for (size_t death = 0; death <= deaths.size(); ++death) {
@@ -457,24 +497,11 @@ TEST_CASE("A service that dies mid-stream restarts from its journal and ends as 
       const status_t status = service.CurrentStatus();
       CHECK(status.n_recovered == static_cast<int64_t>(recovery.records.size()));
       CHECK_THAT(status.recovery, Contains("replayed"));
-      // The state it had: the same decisions and, bit for bit, the same estimate.
-      const std::vector<HypothesisDecision> now = service.Decisions();
-      REQUIRE(now.size() == before.size());
-      for (size_t k = 0; k < now.size(); ++k) {
-        CHECK(now[k].hypothesis_id == before[k].hypothesis_id);
-        CHECK(now[k].decision.state == before[k].decision.state);
-        CHECK(now[k].decision.step == before[k].decision.step);
+      if (snapshot_every > 0 && recovery.records.size() >= static_cast<size_t>(snapshot_every)) {
+        CHECK_THAT(status.recovery, Contains("restored the snapshot"));
+        ++restored_from_snapshot;
       }
-      const std::vector<Service::SessionEstimate> estimate = service.Estimates();
-      REQUIRE(estimate.size() == estimate_before.size());
-      for (size_t s = 0; s < estimate.size(); ++s) {
-        REQUIRE(estimate[s].poses.size() == estimate_before[s].poses.size());
-        for (size_t k = 0; k < estimate[s].poses.size(); ++k) {
-          for (int i = 0; i < 3; ++i) {
-            CHECK(estimate[s].poses[k].t[i] == estimate_before[s].poses[k].t[i]);
-          }
-        }
-      }
+      CheckSameState(service, before, estimate_before);
       // It announces a complete solution.
       const std::vector<correction_t> corrections =
           sink.New<correction_t>(daemon.channels.correction);
@@ -515,6 +542,170 @@ TEST_CASE("A service that dies mid-stream restarts from its journal and ends as 
       before = service.Decisions();
       estimate_before = service.Estimates();
     }
+  }
+  if (snapshot_every > 0) CHECK(restored_from_snapshot >= 3);
+}
+
+// Runs the Intel case through a service with a journal at `path`, writing a snapshot after
+// `snapshot_after` inputs (and then no more); returns its decisions and estimate at the end.
+void RunWithSnapshot(const std::string& path,
+                     size_t snapshot_after,
+                     std::vector<HypothesisDecision>* decisions,
+                     std::vector<Service::SessionEstimate>* estimate) {
+  const Case& c = IntelCase();
+  std::remove(path.c_str());
+  std::remove((path + ".snapshot").c_str());
+  DaemonOptions daemon = FastResync();
+  daemon.journal.snapshot_every = 1 << 30;  // only when asked
+  RecordingSink sink;
+  Service service(daemon, CaseOptions(), &sink);
+  Journal journal;
+  JournalRecovery recovery;
+  REQUIRE(journal.Open(path, JournalSyncPolicy::kNever, &recovery).ok());
+  service.SetJournal(&journal);
+  MessageSequencer producer("robot", daemon.channels);
+  for (size_t k = 0; k < c.messages.size(); ++k) {
+    const auto encoded = producer.Encode(c.messages[k], NowUtime());
+    service.Receive(encoded.first, encoded.second.data(), static_cast<int>(encoded.second.size()));
+    service.ProcessQueued(std::chrono::milliseconds(0));
+    if (k + 1 == snapshot_after) REQUIRE(service.WriteSnapshot().ok());
+  }
+  *decisions = service.Decisions();
+  *estimate = service.Estimates();
+}
+
+// Restarts from `path` (and its snapshot, if any); returns the recovery text.
+std::string Restart(const std::string& path,
+                    const IrrrOptions& options,
+                    std::vector<HypothesisDecision>* decisions,
+                    std::vector<Service::SessionEstimate>* estimate) {
+  RecordingSink sink;
+  Service service(FastResync(), options, &sink);
+  Journal journal;
+  JournalRecovery recovery;
+  REQUIRE(journal.Open(path, JournalSyncPolicy::kNever, &recovery).ok());
+  service.Recover(recovery, path);
+  *decisions = service.Decisions();
+  *estimate = service.Estimates();
+  return service.CurrentStatus().recovery;
+}
+
+void FlipByte(const std::string& path, long offset) {
+  std::FILE* f = std::fopen(path.c_str(), "r+b");
+  REQUIRE(f != nullptr);
+  REQUIRE(std::fseek(f, offset, SEEK_SET) == 0);
+  const int byte = std::fgetc(f);
+  REQUIRE(std::fseek(f, offset, SEEK_SET) == 0);
+  std::fputc(byte ^ 0x5a, f);
+  std::fclose(f);
+}
+
+TEST_CASE("A snapshot body reads back as written, and any cut of it is refused", "[reliability]") {
+  IrrrStepState<Pose3> state;
+  state.decisions.resize(3);
+  state.decisions[1] = {0, LoopState::kReversed, 4, 12.5, 12.59};
+  state.estimate = {Pose3(), Pose3::Exp((Pose3::Tangent() << 1, 2, 3, 0.1, -0.2, 0.3).finished())};
+  state.clusters.resize(2);
+  state.clusters[0].links = {1, 2};
+  state.clusters[0].session_a = 1;
+  state.clusters[0].in_good = true;
+  state.clusters[1].opponents = {0};
+  state.clusters[1].in_reject = true;
+  state.cluster_of = {0, 1};
+  state.steps = 7;
+  state.judged = 2;
+  SnapshotWriter w;
+  w.String("options");
+  w.StepState(state);
+  const std::vector<uint8_t> body = w.bytes();
+
+  SnapshotReader r(body);
+  std::string text;
+  IrrrStepState<Pose3> back;
+  REQUIRE(r.String(&text));
+  REQUIRE(r.StepState(&back));
+  CHECK(r.at_end());
+  CHECK(text == "options");
+  REQUIRE(back.decisions.size() == 3);
+  CHECK(back.decisions[1].state == LoopState::kReversed);
+  CHECK(back.decisions[1].threshold == 12.59);
+  CHECK(std::isnan(back.decisions[0].chi2));
+  REQUIRE(back.estimate.size() == 2);
+  CHECK(back.estimate[1].translation() == state.estimate[1].translation());
+  CHECK(back.estimate[1].quaternion().coeffs() == state.estimate[1].quaternion().coeffs());
+  CHECK(back.clusters[0].links == std::vector<int>{1, 2});
+  CHECK((back.clusters[0].in_good && !back.clusters[0].in_r && back.clusters[1].in_reject));
+  CHECK(back.clusters[1].opponents == std::vector<int>{0});
+  CHECK((back.steps == 7 && back.judged == 2 && back.cluster_of == state.cluster_of));
+
+  for (size_t cut = 0; cut < body.size(); ++cut) {
+    const std::vector<uint8_t> part(body.begin(), body.begin() + static_cast<long>(cut));
+    SnapshotReader partial(part);
+    IrrrStepState<Pose3> ignored;
+    const bool ok = partial.String(&text) && partial.StepState(&ignored) && partial.at_end();
+    CHECK(!ok);
+  }
+}
+
+TEST_CASE("A restart from a snapshot runs no step it covers and rebuilds the same state",
+          "[reliability]") {
+  const Case& c = IntelCase();
+  const std::string path = TestDirectory("reliability_snapshot") + "/journal";
+  std::vector<HypothesisDecision> decisions;
+  std::vector<Service::SessionEstimate> estimate;
+  std::vector<HypothesisDecision> recovered;
+  std::vector<Service::SessionEstimate> recovered_estimate;
+
+  SECTION("a snapshot of everything: nothing is replayed with its steps") {
+    RunWithSnapshot(path, c.messages.size(), &decisions, &estimate);
+    const std::string text = Restart(path, CaseOptions(), &recovered, &recovered_estimate);
+    CHECK_THAT(text,
+               Contains("restored the snapshot of the first " + std::to_string(c.messages.size()) +
+                        " inputs, then replayed 0 inputs"));
+    CheckSameState(recovered, recovered_estimate, decisions, estimate);
+  }
+  SECTION("a snapshot halfway: the second half is replayed with its steps") {
+    RunWithSnapshot(path, c.messages.size() / 2, &decisions, &estimate);
+    const std::string text = Restart(path, CaseOptions(), &recovered, &recovered_estimate);
+    CHECK_THAT(text,
+               Contains("then replayed " +
+                        std::to_string(c.messages.size() - c.messages.size() / 2) + " inputs"));
+    CheckSameState(recovered, recovered_estimate, decisions, estimate);
+  }
+  SECTION("a corrupt snapshot is not used: the whole journal is replayed") {
+    RunWithSnapshot(path, c.messages.size() / 2, &decisions, &estimate);
+    FlipByte(path + ".snapshot", 100);
+    const std::string text = Restart(path, CaseOptions(), &recovered, &recovered_estimate);
+    CHECK_THAT(text,
+               !Contains("restored the snapshot") &&
+                   Contains("replayed " + std::to_string(c.messages.size()) + " inputs"));
+    CheckSameState(recovered, recovered_estimate, decisions, estimate);
+  }
+  SECTION("a snapshot of another journal is not used") {
+    RunWithSnapshot(path, c.messages.size() / 2, &decisions, &estimate);
+    FlipByte(path, 40);  // inside the first record: the journal now ends before it
+    const std::string text = Restart(path, CaseOptions(), &recovered, &recovered_estimate);
+    CHECK_THAT(text, !Contains("restored the snapshot") && Contains("replayed 0 inputs"));
+    CHECK(recovered.empty());
+  }
+  SECTION("under other irrr options the journal is decided again") {
+    RunWithSnapshot(path, c.messages.size(), &decisions, &estimate);
+    IrrrOptions other = CaseOptions();
+    other.alpha = 0.99;
+    const std::string text = Restart(path, other, &recovered, &recovered_estimate);
+    CHECK_THAT(text, !Contains("restored the snapshot"));
+    // Decided under alpha 0.99: what RunIncrementalIrrr says with those options.
+    const std::vector<LoopDecision> expected =
+        RunIncrementalIrrr<Pose2>(c.graph, other, nullptr, nullptr);
+    REQUIRE(recovered.size() == decisions.size());
+    int differ_from_095 = 0;
+    for (size_t k = 0; k < recovered.size(); ++k) {
+      const int edge = c.graph_edge_of_file_edge[recovered[k].hypothesis_id];
+      CHECK(recovered[k].decision.state == expected[edge].state);
+      CHECK(recovered[k].decision.step == expected[edge].step);
+      differ_from_095 += recovered[k].decision.threshold != decisions[k].decision.threshold;
+    }
+    CHECK(differ_from_095 > 0);
   }
 }
 

@@ -1,0 +1,299 @@
+#include "daemon/snapshot.h"
+
+#include <fcntl.h>
+#include <unistd.h>
+#include <zlib.h>
+
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
+#include <limits>
+
+namespace irrr {
+namespace {
+
+constexpr char kMagic[8] = {'I', 'R', 'R', 'R', 'S', 'N', 'P', '1'};
+constexpr size_t kHeader = sizeof kMagic + 8;  // magic, length, CRC
+constexpr uint32_t kMaxBody = 1u << 31;
+
+void PutU32(uint32_t v, std::vector<uint8_t>* out) {
+  for (int k = 0; k < 4; ++k) out->push_back(static_cast<uint8_t>(v >> (8 * k)));
+}
+uint32_t GetU32(const uint8_t* p) {
+  uint32_t v = 0;
+  for (int k = 0; k < 4; ++k) v |= uint32_t{p[k]} << (8 * k);
+  return v;
+}
+uint32_t Crc32(const uint8_t* data, size_t size) {
+  return static_cast<uint32_t>(crc32(crc32(0L, Z_NULL, 0), data, static_cast<uInt>(size)));
+}
+
+Status Errno(const std::string& what) { return Status::Error(what + ": " + std::strerror(errno)); }
+
+Status WriteAll(int fd, const uint8_t* data, size_t size, const std::string& path) {
+  while (size > 0) {
+    const ssize_t n = write(fd, data, size);
+    if (n < 0 && errno == EINTR) continue;
+    if (n < 0) return Errno(path + ": write");
+    data += n;
+    size -= static_cast<size_t>(n);
+  }
+  return Status::Ok();
+}
+
+std::string DirectoryOf(const std::string& path) {
+  const size_t slash = path.rfind('/');
+  if (slash == std::string::npos) return ".";
+  return slash == 0 ? "/" : path.substr(0, slash);
+}
+
+}  // namespace
+
+// ---- Writer ----
+
+void SnapshotWriter::I64(int64_t v) {
+  for (int k = 0; k < 8; ++k)
+    bytes_.push_back(static_cast<uint8_t>(static_cast<uint64_t>(v) >> (8 * k)));
+}
+
+void SnapshotWriter::F64(double v) {
+  uint64_t bits = 0;
+  std::memcpy(&bits, &v, sizeof bits);
+  I64(static_cast<int64_t>(bits));
+}
+
+void SnapshotWriter::String(const std::string& s) {
+  I64(static_cast<int64_t>(s.size()));
+  bytes_.insert(bytes_.end(), s.begin(), s.end());
+}
+
+void SnapshotWriter::Ints(const std::vector<int>& v) {
+  I64(static_cast<int64_t>(v.size()));
+  for (int x : v) I64(x);
+}
+
+template <>
+void SnapshotWriter::PoseValue(const Pose2& pose) {
+  F64(pose.translation().x());
+  F64(pose.translation().y());
+  F64(pose.yaw_rad());
+}
+
+template <>
+void SnapshotWriter::PoseValue(const Pose3& pose) {
+  const Eigen::Quaterniond& q = pose.quaternion();
+  for (double v : {q.w(), q.x(), q.y(), q.z()}) F64(v);
+  for (int k = 0; k < 3; ++k) F64(pose.translation()[k]);
+}
+
+template <class Pose>
+void SnapshotWriter::StepState(const IrrrStepState<Pose>& state) {
+  I64(static_cast<int64_t>(state.decisions.size()));
+  for (const LoopDecision& d : state.decisions) {
+    I64(d.cluster);
+    I64(static_cast<int64_t>(d.state));
+    I64(d.step);
+    F64(d.chi2);
+    F64(d.threshold);
+  }
+  I64(static_cast<int64_t>(state.estimate.size()));
+  for (const Pose& pose : state.estimate) PoseValue(pose);
+  I64(static_cast<int64_t>(state.clusters.size()));
+  for (const auto& c : state.clusters) {
+    Ints(c.links);
+    I64(c.session_a);
+    I64(c.session_b);
+    I64((c.in_r ? 1 : 0) | (c.in_good ? 2 : 0) | (c.in_reject ? 4 : 0));
+    Ints(c.opponents);
+  }
+  Ints(state.cluster_of);
+  I64(state.steps);
+  I64(state.judged);
+}
+
+// ---- Reader ----
+
+bool SnapshotReader::I64(int64_t* v) {
+  if (failed_ || body_.size() - at_ < 8) return !(failed_ = true);
+  uint64_t bits = 0;
+  for (int k = 0; k < 8; ++k) bits |= uint64_t{body_[at_ + k]} << (8 * k);
+  at_ += 8;
+  *v = static_cast<int64_t>(bits);
+  return true;
+}
+
+bool SnapshotReader::F64(double* v) {
+  int64_t bits = 0;
+  if (!I64(&bits)) return false;
+  std::memcpy(v, &bits, sizeof *v);
+  return true;
+}
+
+bool SnapshotReader::Int(int* v) {
+  int64_t wide = 0;
+  if (!I64(&wide)) return false;
+  if (wide < std::numeric_limits<int>::min() || wide > std::numeric_limits<int>::max()) {
+    return !(failed_ = true);
+  }
+  *v = static_cast<int>(wide);
+  return true;
+}
+
+bool SnapshotReader::Count(size_t min_bytes_each, size_t* count) {
+  int64_t n = 0;
+  if (!I64(&n)) return false;
+  if (n < 0 || static_cast<uint64_t>(n) > (body_.size() - at_) / min_bytes_each) {
+    return !(failed_ = true);
+  }
+  *count = static_cast<size_t>(n);
+  return true;
+}
+
+bool SnapshotReader::String(std::string* s) {
+  size_t n = 0;
+  if (!Count(1, &n)) return false;
+  s->assign(body_.begin() + static_cast<std::ptrdiff_t>(at_),
+            body_.begin() + static_cast<std::ptrdiff_t>(at_ + n));
+  at_ += n;
+  return true;
+}
+
+bool SnapshotReader::Ints(std::vector<int>* v) {
+  size_t n = 0;
+  if (!Count(8, &n)) return false;
+  v->resize(n);
+  for (int& x : *v) {
+    if (!Int(&x)) return false;
+  }
+  return true;
+}
+
+template <>
+bool SnapshotReader::PoseValue(Pose2* pose) {
+  double x = 0.0;
+  double y = 0.0;
+  double yaw = 0.0;
+  if (!F64(&x) || !F64(&y) || !F64(&yaw)) return false;
+  *pose = Pose2(x, y, yaw);
+  return true;
+}
+
+template <>
+bool SnapshotReader::PoseValue(Pose3* pose) {
+  double v[7];
+  for (double& x : v) {
+    if (!F64(&x)) return false;
+  }
+  const Eigen::Quaterniond q(v[0], v[1], v[2], v[3]);
+  if (!(std::abs(q.norm() - 1.0) < 1e-6)) return !(failed_ = true);
+  *pose = Pose3(q, Eigen::Vector3d(v[4], v[5], v[6]));
+  return true;
+}
+
+template <class Pose>
+bool SnapshotReader::StepState(IrrrStepState<Pose>* state) {
+  size_t n = 0;
+  if (!Count(5 * 8, &n)) return false;
+  state->decisions.resize(n);
+  for (LoopDecision& d : state->decisions) {
+    int kind = 0;
+    if (!Int(&d.cluster) || !Int(&kind) || !Int(&d.step) || !F64(&d.chi2) || !F64(&d.threshold)) {
+      return false;
+    }
+    if (kind < static_cast<int>(LoopState::kPending) ||
+        kind > static_cast<int>(LoopState::kReversed)) {
+      return !(failed_ = true);
+    }
+    d.state = static_cast<LoopState>(kind);
+  }
+  if (!Count(Pose::kDim * 8, &n)) return false;
+  state->estimate.resize(n);
+  for (Pose& pose : state->estimate) {
+    if (!PoseValue(&pose)) return false;
+  }
+  if (!Count(6 * 8, &n)) return false;
+  state->clusters.resize(n);
+  for (auto& c : state->clusters) {
+    int64_t flags = 0;
+    if (!Ints(&c.links) || !Int(&c.session_a) || !Int(&c.session_b) || !I64(&flags) ||
+        !Ints(&c.opponents)) {
+      return false;
+    }
+    c.in_r = (flags & 1) != 0;
+    c.in_good = (flags & 2) != 0;
+    c.in_reject = (flags & 4) != 0;
+  }
+  return Ints(&state->cluster_of) && Int(&state->steps) && Int(&state->judged);
+}
+
+// ---- Files ----
+
+Status WriteSnapshotFile(const std::string& path,
+                         const std::vector<uint8_t>& body,
+                         JournalSyncPolicy sync) {
+  if (body.size() > kMaxBody) return Status::Error(path + ": snapshot too large");
+  std::vector<uint8_t> header(kMagic, kMagic + sizeof kMagic);
+  PutU32(static_cast<uint32_t>(body.size()), &header);
+  PutU32(Crc32(body.data(), body.size()), &header);
+  const std::string tmp = path + ".tmp";
+  const int fd = open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (fd < 0) return Errno(tmp);
+  Status s = WriteAll(fd, header.data(), header.size(), tmp);
+  if (s.ok()) s = WriteAll(fd, body.data(), body.size(), tmp);
+  if (s.ok() && sync != JournalSyncPolicy::kNever && fdatasync(fd) != 0) s = Errno(tmp);
+  if (close(fd) != 0 && s.ok()) s = Errno(tmp + ": close");
+  if (s.ok() && std::rename(tmp.c_str(), path.c_str()) != 0) s = Errno(path + ": rename");
+  if (!s.ok()) {
+    std::remove(tmp.c_str());
+    return s;
+  }
+  if (sync != JournalSyncPolicy::kNever) {
+    // The rename reaches the disk with the directory.
+    const int dir = open(DirectoryOf(path).c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+    if (dir >= 0) {
+      fsync(dir);
+      close(dir);
+    }
+  }
+  return Status::Ok();
+}
+
+Status ReadSnapshotFile(const std::string& path, std::vector<uint8_t>* body, bool* exists) {
+  body->clear();
+  *exists = false;
+  const int fd = open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) return errno == ENOENT ? Status::Ok() : Errno(path);
+  *exists = true;
+  std::vector<uint8_t> data;
+  uint8_t buffer[1 << 16];
+  for (;;) {
+    const ssize_t n = read(fd, buffer, sizeof buffer);
+    if (n < 0 && errno == EINTR) continue;
+    if (n < 0) {
+      close(fd);
+      return Errno(path + ": read");
+    }
+    if (n == 0) break;
+    data.insert(data.end(), buffer, buffer + n);
+  }
+  close(fd);
+  if (data.size() < kHeader || std::memcmp(data.data(), kMagic, sizeof kMagic) != 0) {
+    return Status::Error(path + ": not an irrrd snapshot (it does not start with IRRRSNP1)");
+  }
+  const uint32_t length = GetU32(&data[sizeof kMagic]);
+  const uint32_t crc = GetU32(&data[sizeof kMagic + 4]);
+  if (data.size() - kHeader != length) {
+    return Status::Error(path + ": " + std::to_string(data.size() - kHeader) +
+                         " bytes of body, its header says " + std::to_string(length));
+  }
+  if (Crc32(&data[kHeader], length) != crc) return Status::Error(path + ": fails its CRC");
+  body->assign(data.begin() + kHeader, data.end());
+  return Status::Ok();
+}
+
+template void SnapshotWriter::StepState(const IrrrStepState<Pose2>&);
+template void SnapshotWriter::StepState(const IrrrStepState<Pose3>&);
+template bool SnapshotReader::StepState(IrrrStepState<Pose2>*);
+template bool SnapshotReader::StepState(IrrrStepState<Pose3>*);
+
+}  // namespace irrr

@@ -1,0 +1,84 @@
+#ifndef IRRR_DAEMON_SNAPSHOT_H_
+#define IRRR_DAEMON_SNAPSHOT_H_
+
+// The daemon's snapshots: what the iRRR steps had computed at a point of the journal
+// (IrrrStepState, core/irrr.h). A restart feeds the journal's inputs up to that point without
+// running their steps (graph building only, fast), restores the snapshot, and runs the steps of
+// the inputs after it: the same state as replaying everything, without re-deciding the past.
+//
+// File (next to the journal, "<journal>.snapshot"; replaced atomically: written to ".tmp",
+// synced, renamed):
+//   8 bytes "IRRRSNP1" | uint32 body length | uint32 CRC-32 (zlib) of the body | body
+// The body is a little-endian sequence written by SnapshotWriter and read back, bounds-checked,
+// by SnapshotReader; what it holds is the service's business (service.cc).
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "clients/irrr_config.h"
+#include "core/irrr.h"
+#include "core/status.h"
+
+namespace irrr {
+
+class SnapshotWriter {
+ public:
+  void I64(int64_t v);
+  void F64(double v);
+  void String(const std::string& s);
+  void Ints(const std::vector<int>& v);
+  template <class Pose>
+  void StepState(const IrrrStepState<Pose>& state);
+
+  const std::vector<uint8_t>& bytes() const { return bytes_; }
+
+ private:
+  template <class Pose>
+  void PoseValue(const Pose& pose);
+
+  std::vector<uint8_t> bytes_;
+};
+
+// Every getter returns false (and leaves the reader failed) when the body ends too soon or holds
+// a count that cannot fit in what is left.
+class SnapshotReader {
+ public:
+  explicit SnapshotReader(const std::vector<uint8_t>& body) : body_(body) {}
+
+  bool I64(int64_t* v);
+  bool F64(double* v);
+  bool String(std::string* s);
+  bool Ints(std::vector<int>* v);
+  template <class Pose>
+  bool StepState(IrrrStepState<Pose>* state);
+
+  bool at_end() const { return at_ == body_.size(); }
+
+ private:
+  bool Int(int* v);
+  bool Count(size_t min_bytes_each, size_t* count);
+  template <class Pose>
+  bool PoseValue(Pose* pose);
+
+  const std::vector<uint8_t>& body_;
+  size_t at_ = 0;
+  bool failed_ = false;
+};
+
+// Writes `body` to `path` atomically. `sync` kNever skips the fsyncs (the rename is still atomic
+// for a process crash).
+Status WriteSnapshotFile(const std::string& path,
+                         const std::vector<uint8_t>& body,
+                         JournalSyncPolicy sync);
+// Reads the body back; `*exists` false (and ok) when there is no file.
+Status ReadSnapshotFile(const std::string& path, std::vector<uint8_t>* body, bool* exists);
+
+extern template void SnapshotWriter::StepState(const IrrrStepState<Pose2>&);
+extern template void SnapshotWriter::StepState(const IrrrStepState<Pose3>&);
+extern template bool SnapshotReader::StepState(IrrrStepState<Pose2>*);
+extern template bool SnapshotReader::StepState(IrrrStepState<Pose3>*);
+
+}  // namespace irrr
+
+#endif  // IRRR_DAEMON_SNAPSHOT_H_
