@@ -1,16 +1,20 @@
 // irrr-inject: replays pose-graph files as the LCM messages of robots' front ends, for irrrd.
 //
 //   irrr-inject FILE [FILE ...] [--lcm-url URL] [--rate MSGS_PER_S] [--window N] [--lcmlog OUT]
-//               [--sender NAME] [--first-robot R] [--no-flush] [--wait] [--config FILE]
+//               [--sender NAME] [--first-robot R] [--robots R,R,... [--only-robot R]]
+//               [--no-flush] [--wait] [--config FILE]
 //
 // Each file is one robot (robot ids from --first-robot), its sessions inferred as irrr-batch
-// does; the files' messages are merged by vertex ordinal. Messages go out in arrival order
-// (replay_messages.h), then a FLUSH so that every cluster is judged. --rate paces them; --rate 0
-// sends as fast as the daemon absorbs them: at most --window messages ahead of what its status
-// reports received and applied. --lcmlog writes an LCM log instead (for lcm-logplayer), stamped
-// at --rate. --wait waits, after the last message, until the daemon has applied everything.
-// Exit codes follow sysexits.h: 64 usage, 65 bad input data, 66 input missing, 69 LCM
-// unavailable or daemon silent, 73 log not written, 78 bad configuration.
+// does; the files' messages are merged by vertex ordinal. A fleet in one multi-session file:
+// --robots names the robot of each session, and a loop hypothesis is sent by the robot of its
+// later pose (AssignRobots, replay_messages.h); --only-robot sends just that robot's part, as the
+// robot's own front end would (and no FLUSH: the sessions' ENDs close every cluster). Messages go
+// out in arrival order (replay_messages.h), then a FLUSH so that every cluster is judged. --rate
+// paces them; --rate 0 sends as fast as the daemon absorbs them: at most --window messages ahead of
+// what its status reports received and applied. --lcmlog writes an LCM log instead (for
+// lcm-logplayer), stamped at --rate. --wait waits, after the last message, until the daemon has
+// applied everything. Exit codes follow sysexits.h: 64 usage, 65 bad input data, 66 input missing,
+// 69 LCM unavailable or daemon silent, 73 log not written, 78 bad configuration.
 
 #include <sysexits.h>
 #include <unistd.h>
@@ -26,6 +30,7 @@
 #include <vector>
 
 #include <fmt/core.h>
+#include <fmt/ranges.h>
 #include <CLI/CLI.hpp>
 #include <lcm/lcm-cpp.hpp>
 
@@ -48,6 +53,8 @@ struct Arguments {
   std::string lcmlog;
   std::string sender = "irrr-inject";
   int first_robot = 0;
+  std::vector<int32_t> robots;  // per session of the one file (a fleet)
+  int32_t only_robot = -1;
   bool no_flush = false;
   bool wait = false;
   double timeout_s = 600.0;
@@ -404,8 +411,28 @@ int Run(const Arguments& args) {
     robots.push_back(std::move(messages));
   }
   std::vector<ReplayMessage> messages = MergeByStamp(robots);
-  if (!args.no_flush) messages.push_back(FlushMessage());
-  SenderFleet fleet(args.sender, channels, args.first_robot, static_cast<int>(robots.size()));
+  int32_t first_robot = args.first_robot;
+  int num_robots = static_cast<int>(robots.size());
+  if (!args.robots.empty()) {
+    if (!AssignRobots(args.robots, args.only_robot, &messages)) {
+      fmt::print(stderr,
+                 "irrr-inject: --robots names {} robot(s), the file has more sessions\n",
+                 args.robots.size());
+      return EX_USAGE;
+    }
+    first_robot = *std::min_element(args.robots.begin(), args.robots.end());
+    num_robots = *std::max_element(args.robots.begin(), args.robots.end()) - first_robot + 1;
+    if (args.only_robot >= 0) {
+      first_robot = args.only_robot;
+      num_robots = 1;
+    }
+    fmt::print("fleet     sessions' robots {}; sending {} message(s){}\n",
+               fmt::join(args.robots, ","),
+               messages.size(),
+               args.only_robot >= 0 ? " of robot " + std::to_string(args.only_robot) : "");
+  }
+  if (!args.no_flush && args.only_robot < 0) messages.push_back(FlushMessage());
+  SenderFleet fleet(args.sender, channels, first_robot, num_robots);
   return args.lcmlog.empty() ? Publish(args, channels, messages, &fleet)
                              : WriteLog(args, messages, &fleet);
 }
@@ -429,6 +456,18 @@ int main(int argc, char** argv) {
   app.add_option("--first-robot", args.first_robot, "robot id of the first file")
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
+  auto* robots_option =
+      app.add_option("--robots",
+                     args.robots,
+                     "a fleet in one file: the robot id of each of its sessions (comma separated)")
+          ->delimiter(',')
+          ->check(CLI::NonNegativeNumber);
+  app.add_option("--only-robot",
+                 args.only_robot,
+                 "send only this robot's keyframes, session ENDs and the loops it recognised "
+                 "(no FLUSH)")
+      ->needs(robots_option)
+      ->check(CLI::NonNegativeNumber);
   app.add_flag("--no-flush", args.no_flush, "do not send a FLUSH after the last message");
   app.add_flag(
       "--wait", args.wait, "wait until the daemon has applied everything, print its counts");
@@ -446,6 +485,15 @@ int main(int argc, char** argv) {
   }
   if (args.sender.empty() || args.sender.size() > 64) {
     fmt::print(stderr, "irrr-inject: --sender: must have 1 to 64 characters\n");
+    return EX_USAGE;
+  }
+  if (!args.robots.empty() && args.inputs.size() != 1) {
+    fmt::print(stderr, "irrr-inject: --robots: give one multi-session file\n");
+    return EX_USAGE;
+  }
+  if (args.only_robot >= 0 &&
+      std::find(args.robots.begin(), args.robots.end(), args.only_robot) == args.robots.end()) {
+    fmt::print(stderr, "irrr-inject: --only-robot {}: not in --robots\n", args.only_robot);
     return EX_USAGE;
   }
   return irrr::Run(args);

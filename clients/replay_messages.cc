@@ -1,6 +1,7 @@
 #include "clients/replay_messages.h"
 
 #include <cmath>
+#include <map>
 #include <utility>
 
 #include "core/irrr.h"
@@ -99,6 +100,47 @@ std::vector<ReplayMessage> MergeByStamp(const std::vector<std::vector<ReplayMess
   }
 }
 
+bool AssignRobots(const std::vector<int32_t>& robot_of_session,
+                  int32_t only_robot,
+                  std::vector<ReplayMessage>* messages) {
+  auto robot_of = [&](int32_t session, int32_t* robot) {
+    if (session < 0 || static_cast<size_t>(session) >= robot_of_session.size()) return false;
+    *robot = robot_of_session[static_cast<size_t>(session)];
+    return true;
+  };
+  std::map<std::pair<int32_t, int64_t>, double> stamp_of;  // (session, key) -> arrival ordinal
+  std::vector<ReplayMessage> kept;
+  for (ReplayMessage m : *messages) {
+    switch (m.kind) {
+      case ReplayMessage::Kind::kKeyframe:
+        if (!robot_of(m.keyframe.session_id, &m.keyframe.robot_id)) return false;
+        stamp_of[{m.keyframe.session_id, m.keyframe.key}] = m.stamp;
+        m.sender_robot = m.keyframe.robot_id;
+        break;
+      case ReplayMessage::Kind::kLoop: {
+        loop_hypothesis_t& l = m.loop;
+        if (!robot_of(l.session_from, &l.robot_from) || !robot_of(l.session_to, &l.robot_to)) {
+          return false;
+        }
+        const bool from_later =
+            stamp_of[{l.session_from, l.key_from}] > stamp_of[{l.session_to, l.key_to}];
+        m.sender_robot = from_later ? l.robot_from : l.robot_to;
+        break;
+      }
+      case ReplayMessage::Kind::kSession:
+        if (m.session.event != session_event_t::FLUSH &&
+            !robot_of(m.session.session_id, &m.session.robot_id)) {
+          return false;
+        }
+        m.sender_robot = m.session.robot_id;
+        break;
+    }
+    if (only_robot < 0 || m.sender_robot == only_robot) kept.push_back(m);
+  }
+  *messages = std::move(kept);
+  return true;
+}
+
 ReplayMessage FlushMessage() {
   ReplayMessage m;
   m.kind = ReplayMessage::Kind::kSession;
@@ -160,6 +202,7 @@ MessageSequencer::Encoded SenderFleet::Encode(const ReplayMessage& message, int6
   int32_t robot = message.session.robot_id;
   if (message.kind == ReplayMessage::Kind::kKeyframe) robot = message.keyframe.robot_id;
   if (message.kind == ReplayMessage::Kind::kLoop) robot = message.loop.robot_from;
+  if (message.sender_robot >= 0) robot = message.sender_robot;
   const bool flush = message.kind == ReplayMessage::Kind::kSession &&
                      message.session.event == session_event_t::FLUSH;
   return senders_[flush ? 0 : robot - first_robot_].Encode(message, utime);

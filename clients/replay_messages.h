@@ -25,7 +25,8 @@ namespace irrr {
 struct ReplayMessage {
   enum class Kind { kKeyframe, kLoop, kSession };
   Kind kind = Kind::kKeyframe;
-  double stamp = 0.0;  // the file's vertex ordinal it arrives with (merging several files)
+  double stamp = 0.0;         // the file's vertex ordinal it arrives with (merging several files)
+  int32_t sender_robot = -1;  // the robot that sends it (-1: the robot it names; see SenderFleet)
   keyframe_t keyframe{};
   loop_hypothesis_t loop{};
   session_event_t session{};
@@ -41,6 +42,15 @@ std::vector<ReplayMessage> ReplayMessages(const PoseGraph<Pose>& graph,
 // Several robots' message lists merged by stamp (ties: the earlier list first), each list's
 // order kept.
 std::vector<ReplayMessage> MergeByStamp(const std::vector<std::vector<ReplayMessage>>& lists);
+
+// A fleet in one multi-session file: session s (the graph's session id) belongs to robot
+// `robot_of_session[s]`, which sends its keyframes and its END; a loop hypothesis is sent by the
+// robot of its later pose (the one that recognised the place), and may join two robots. Sets the
+// robot ids of `messages` (from ReplayMessages) accordingly and keeps those sent by `only_robot`
+// (all with -1). False if a session has no robot.
+bool AssignRobots(const std::vector<int32_t>& robot_of_session,
+                  int32_t only_robot,
+                  std::vector<ReplayMessage>* messages);
 
 // A FLUSH session event.
 ReplayMessage FlushMessage();
@@ -77,7 +87,7 @@ class SenderFleet {
               const DaemonChannels& channels,
               int32_t first_robot,
               int num_robots);
-  // Encodes `message` as the sender of its robot.
+  // Encodes `message` as the sender of its robot (sender_robot, else the robot it names).
   MessageSequencer::Encoded Encode(const ReplayMessage& message, int64_t utime);
   MessageSequencer::Encoded Progress(int64_t utime);
   const std::vector<std::string>& names() const { return names_; }

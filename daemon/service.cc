@@ -293,6 +293,58 @@ struct Engine {
   int64_t KeyOf(int session, int position) const { return sessions[session].first_key + position; }
 };
 
+// Where an engine's components lie: each in the frame of the first pose of its earliest session,
+// the one whose first keyframe has the smallest stamp (ties: the smallest (robot_id,
+// session_id)). This is a property of the data, not of arrival order, so daemons that hear the
+// same inputs in other orders publish in the same frames. Core's Irrr keeps each component in the
+// frame of its first-created session; poses are re-expressed when the two differ.
+template <class Pose>
+struct MapFrames {
+  std::vector<int> component_of;  // per session: core's component index
+  std::vector<int> anchor;        // per component: its earliest session
+  std::vector<char> moved;        // per component: its frame differs from core's
+  std::vector<Pose> map_T_core;   // per component: core's frame in the map frame
+
+  Pose InMap(int session, const Pose& pose) const {
+    const int k = component_of[session];
+    return moved[k] ? map_T_core[k] * pose : pose;
+  }
+};
+
+template <class Pose>
+MapFrames<Pose> FramesOf(const Engine<Pose>& engine) {
+  MapFrames<Pose> frames;
+  const Irrr<Pose>& irrr = engine.irrr;
+  frames.component_of = irrr.Components();
+  const int num_components =
+      frames.component_of.empty()
+          ? 0
+          : *std::max_element(frames.component_of.begin(), frames.component_of.end()) + 1;
+  frames.anchor.assign(num_components, -1);
+  std::vector<int> core_anchor(num_components, -1);
+  auto first_stamp = [&](int s) {
+    return irrr.graph().vertex(irrr.graph().session(s).vertices[0]).stamp;
+  };
+  for (int s = 0; s < static_cast<int>(frames.component_of.size()); ++s) {
+    const int k = frames.component_of[s];
+    if (core_anchor[k] < 0) core_anchor[k] = s;  // sessions are in creation order
+    const int a = frames.anchor[k];
+    if (a < 0 || std::make_pair(first_stamp(s), engine.sessions[s].name) <
+                     std::make_pair(first_stamp(a), engine.sessions[a].name)) {
+      frames.anchor[k] = s;
+    }
+  }
+  frames.moved.assign(num_components, 0);
+  frames.map_T_core.resize(num_components);
+  for (int k = 0; k < num_components; ++k) {
+    if (frames.anchor[k] == core_anchor[k]) continue;
+    frames.moved[k] = 1;
+    const int first = irrr.graph().session(frames.anchor[k]).vertices[0];
+    frames.map_T_core[k] = irrr.estimate()[first].Inverse();
+  }
+  return frames;
+}
+
 }  // namespace
 
 struct Service::State {
@@ -875,23 +927,22 @@ struct Service::State {
     const bool full = detail != Detail::kStep;
     const Irrr<Pose>& irrr = engine.irrr;
     const std::vector<Pose>& estimate = irrr.estimate();
-    const std::vector<int> component_of = irrr.Components();
-    // A component is named by the creation order of its earliest session.
-    std::vector<int> component_name;
-    for (size_t s = 0; s < component_of.size(); ++s) {
-      const int k = component_of[s];
-      if (k >= static_cast<int>(component_name.size())) component_name.resize(k + 1, -1);
-      if (component_name[k] < 0) component_name[k] = engine.sessions[s].order;
-    }
+    const MapFrames<Pose> frames = FramesOf(engine);
+    const std::vector<int>& component_of = frames.component_of;
+    // A component is named by the creation order of its earliest session (MapFrames).
+    auto component_name = [&](int s) {
+      return engine.sessions[frames.anchor[component_of[s]]].order;
+    };
     for (int s : touched) {
       const auto& vertices = irrr.graph().session(s).vertices;
-      const int component = component_name[component_of[s]];
+      const int component = component_name(s);
       session_transform_t transform{};
       transform.robot_id = engine.sessions[s].name.first;
       transform.session_id = engine.sessions[s].name.second;
       transform.component = component;
       const int last = vertices.back();
-      transform.map_T_odom = PoseToWire(estimate[last] * engine.odom_pose[last].Inverse());
+      transform.map_T_odom =
+          PoseToWire(frames.InMap(s, estimate[last]) * engine.odom_pose[last].Inverse());
       transform.latest_key = engine.KeyOf(s, static_cast<int>(vertices.size()) - 1);
       c->sessions.push_back(transform);
       LogMembership(engine, s, component);
@@ -905,7 +956,7 @@ struct Service::State {
         chunk.component = component;
         chunk.first_key = engine.KeyOf(s, static_cast<int>(begin));
         for (size_t k = begin; k < end; ++k) {
-          chunk.poses.push_back(PoseToWire(estimate[vertices[k]]));
+          chunk.poses.push_back(PoseToWire(frames.InMap(s, estimate[vertices[k]])));
         }
         chunk.n_poses = static_cast<int32_t>(chunk.poses.size());
         chunks->push_back(std::move(chunk));
@@ -914,8 +965,7 @@ struct Service::State {
     c->n_sessions = static_cast<int32_t>(c->sessions.size());
 
     Counts counts;
-    counts.components =
-        component_of.empty() ? 0 : *std::max_element(component_of.begin(), component_of.end()) + 1;
+    counts.components = static_cast<int>(frames.anchor.size());
     for (const auto& [edge, h] : engine.hypothesis_of_edge) {
       const LoopDecision& d = irrr.decision(edge);
       counts.accepted += d.state == LoopState::kAccepted ? 1 : 0;
@@ -1494,6 +1544,7 @@ namespace {
 template <class Pose>
 void AppendEstimates(const Engine<Pose>& engine,
                      std::vector<std::pair<int, Service::SessionEstimate>>* out) {
+  const MapFrames<Pose> frames = FramesOf(engine);
   for (size_t s = 0; s < engine.sessions.size(); ++s) {
     Service::SessionEstimate e;
     e.robot_id = engine.sessions[s].name.first;
@@ -1501,7 +1552,7 @@ void AppendEstimates(const Engine<Pose>& engine,
     e.first_key = engine.sessions[s].first_key;
     e.dim = WireDim<Pose>();
     for (int v : engine.irrr.graph().session(static_cast<int>(s)).vertices) {
-      e.poses.push_back(PoseToWire(engine.irrr.estimate()[v]));
+      e.poses.push_back(PoseToWire(frames.InMap(static_cast<int>(s), engine.irrr.estimate()[v])));
     }
     out->emplace_back(engine.sessions[s].order, std::move(e));
   }
