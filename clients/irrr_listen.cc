@@ -1,7 +1,7 @@
 // irrr-listen: hears what irrrd publishes and keeps the latest map and every verdict.
 //
 //   irrr-listen [--lcm-url URL] [--output MAP.g2o] [--decisions OUT.csv] [--labels LABELS.csv]
-//               [--idle-exit S] [--config FILE]
+//               [--transforms OUT.csv] [--robot R] [--idle-exit S] [--config FILE]
 //
 // It assembles each solution (a correction_t with all its verdict and pose chunks) and keeps,
 // per session, the newest estimate; keys that no solution has covered yet continue the latest
@@ -14,7 +14,11 @@
 //  - --output: the map as g2o (odometry and accepted loops as edges); vertex id = key, or
 //    robot_id * 1000000000 + key when keys repeat across robots;
 //  - --decisions: one row per hypothesis in irrr-batch's CSV format, ordered by (sender,
-//    hypothesis_id): edge_index = hypothesis_id, from/to = keys, session_from/to = session ids.
+//    hypothesis_id): edge_index = hypothesis_id, from/to = keys, session_from/to = session ids;
+//  - --transforms: per session, the latest map_T_odom (session_transform_t): where the session's
+//    odometry frame lies in its component's map frame.
+// --robot R keeps only robot R's part, as a robot of a fleet would: its sessions' poses and
+// transforms, and the hypotheses with an end in them.
 // --labels prints precision and recall against irrr-corrupt's labels. Exit codes follow
 // sysexits.h: 64 usage, 65 bad labels, 69 LCM unavailable, 73 output not written, 78 bad
 // configuration.
@@ -67,6 +71,8 @@ struct SessionState {
   std::map<int64_t, pose_t> estimate;       // from solutions
   std::map<int64_t, int64_t> estimate_solution;
   int component = -1;
+  session_transform_t transform{};  // the latest (transform_solution > 0)
+  int64_t transform_solution = 0;
 };
 
 struct HypothesisState {
@@ -79,17 +85,20 @@ struct HypothesisState {
 
 class Listener {
  public:
+  // `robot`: keep only that robot's part (-1: everything).
+  explicit Listener(int32_t robot) : robot_(robot) {}
+
   // Handlers (all on the thread that calls lcm.handle()).
   void OnKeyframe(const lcm::ReceiveBuffer* b, const std::string&) {
     keyframe_t m;
-    if (!Decode(b, &m)) return;
+    if (!Decode(b, &m) || !Kept(m.robot_id)) return;
     SessionState& s = sessions_[{m.robot_id, m.session_id}];
     s.dim = m.dim;
     s.keyframes[m.key] = m;
   }
   void OnLoop(const lcm::ReceiveBuffer* b, const std::string&) {
     loop_hypothesis_t m;
-    if (!Decode(b, &m)) return;
+    if (!Decode(b, &m) || !(Kept(m.robot_from) || Kept(m.robot_to))) return;
     HypothesisState& h = hypotheses_[{m.header.sender, m.hypothesis_id}];
     h.heard = true;
     h.hypothesis = m;
@@ -243,8 +252,10 @@ class Listener {
     }
     for (const auto& [name, h] : hypotheses_) {
       if (!h.heard || !h.judged || h.verdict.state != verdict_t::ACCEPTED ||
-          h.hypothesis.dim != WireDim<Pose>()) {
-        continue;
+          h.hypothesis.dim != WireDim<Pose>() ||
+          sessions_.count({h.hypothesis.robot_from, h.hypothesis.session_from}) == 0 ||
+          sessions_.count({h.hypothesis.robot_to, h.hypothesis.session_to}) == 0) {
+        continue;  // not judged, not trusted, or to another robot's map (--robot)
       }
       FileEdge<Pose> edge;
       edge.from = id_of(h.hypothesis.robot_from, h.hypothesis.key_from);
@@ -254,6 +265,29 @@ class Listener {
       file.edges.push_back(edge);
     }
     return file;
+  }
+
+  // "robot_id,session_id,component,latest_key,x,y,z,qw,qx,qy,qz": the latest transform of each
+  // session a correction has placed.
+  Status WriteTransforms(std::ostream& out) const {
+    out << "robot_id,session_id,component,latest_key,x,y,z,qw,qx,qy,qz\n";
+    for (const auto& [name, s] : sessions_) {
+      if (s.transform_solution == 0) continue;
+      const pose_t& p = s.transform.map_T_odom;
+      out << fmt::format("{},{},{},{},{:.17g},{:.17g},{:.17g},{:.17g},{:.17g},{:.17g},{:.17g}\n",
+                         name.first,
+                         name.second,
+                         s.transform.component,
+                         s.transform.latest_key,
+                         p.t[0],
+                         p.t[1],
+                         p.t[2],
+                         p.q[0],
+                         p.q[1],
+                         p.q[2],
+                         p.q[3]);
+    }
+    return out ? Status::Ok() : Status::Error("write failed");
   }
 
   int64_t latest_solution() const { return latest_solution_; }
@@ -270,6 +304,8 @@ class Listener {
     std::map<int, solution_t> poses;
   };
 
+  bool Kept(int32_t robot) const { return robot_ < 0 || robot == robot_; }
+
   template <class Message>
   static bool Decode(const lcm::ReceiveBuffer* b, Message* m) {
     return DecodeMessage(b->data, static_cast<int>(b->data_size), m);
@@ -284,9 +320,16 @@ class Listener {
     }
     const correction_t& c = p.correction;
     for (const session_transform_t& t : c.sessions) {
-      sessions_[{t.robot_id, t.session_id}].component = t.component;
+      if (!Kept(t.robot_id)) continue;
+      SessionState& s = sessions_[{t.robot_id, t.session_id}];
+      s.component = t.component;
+      if (s.transform_solution <= id) {
+        s.transform_solution = id;
+        s.transform = t;
+      }
     }
     for (const auto& [index, chunk] : p.poses) {
+      if (!Kept(chunk.robot_id)) continue;
       SessionState& s = sessions_[{chunk.robot_id, chunk.session_id}];
       for (int k = 0; k < chunk.n_poses; ++k) {
         const int64_t key = chunk.first_key + k;
@@ -298,6 +341,7 @@ class Listener {
     }
     for (const auto& [index, chunk] : p.verdicts) {
       for (const verdict_t& v : chunk.verdicts) {
+        if (!(Kept(v.robot_from) || Kept(v.robot_to))) continue;
         HypothesisState& h = hypotheses_[{v.sender, v.hypothesis_id}];
         if (h.verdict_solution > id) continue;
         h.verdict_solution = id;
@@ -322,6 +366,7 @@ class Listener {
     }
   }
 
+  const int32_t robot_;
   std::map<SessionName, SessionState> sessions_;
   std::map<HypothesisName, HypothesisState> hypotheses_;
   std::map<int64_t, Pending> pending_;
@@ -339,6 +384,8 @@ struct Arguments {
   std::string lcm_url;
   std::string output;
   std::string decisions;
+  std::string transforms;
+  int32_t robot = -1;
   double idle_exit_s = 0.0;
   double final_wait_s = 5.0;
   std::string config;
@@ -395,6 +442,16 @@ int WriteOutputs(const Arguments& args, const Listener& listener) {
       fmt::print("decisions {} ({} hypotheses)\n", args.decisions, rows.size());
     }
   }
+  if (!args.transforms.empty()) {
+    if (Status s = WriteFileAtomically(
+            args.transforms, [&](std::ostream& out) { return listener.WriteTransforms(out); });
+        !s.ok()) {
+      fmt::print(stderr, "irrr-listen: {}\n", s.message());
+      code = EX_CANTCREAT;
+    } else {
+      fmt::print("transforms {}\n", args.transforms);
+    }
+  }
   if (!args.output.empty()) {
     const bool se2 = listener.HasDimension(keyframe_t::DIM_SE2);
     const bool se3 = listener.HasDimension(keyframe_t::DIM_SE3);
@@ -441,7 +498,7 @@ int Run(const Arguments& args) {
     fmt::print(stderr, "irrr-listen: cannot open LCM at \"{}\"\n", args.lcm_url);
     return EX_UNAVAILABLE;
   }
-  Listener listener;
+  Listener listener(args.robot);
   // LCM drops what a subscription has queued beyond its capacity (default 30 messages).
   constexpr int kLcmQueueCapacity = 100000;
   using Handler = void (Listener::*)(const lcm::ReceiveBuffer*, const std::string&);
@@ -541,6 +598,12 @@ int main(int argc, char** argv) {
   app.add_option("--lcm-url", args.lcm_url, "LCM URL (default: LCM_DEFAULT_URL or LCM's)");
   app.add_option("--output", args.output, "write the map here on exit (g2o; TORO for *.graph)");
   app.add_option("--decisions", args.decisions, "write the decisions CSV here on exit");
+  app.add_option(
+      "--transforms", args.transforms, "write each session's latest map_T_odom (CSV) here on exit");
+  app.add_option("--robot",
+                 args.robot,
+                 "keep only this robot's sessions and the hypotheses that touch them")
+      ->check(CLI::NonNegativeNumber);
   app.add_option("--idle-exit",
                  args.idle_exit_s,
                  "exit this many seconds after the last message (0: only on SIGINT/SIGTERM)")

@@ -175,7 +175,11 @@ int Run(const Arguments& args, const CLI::App& app) {
   constexpr int kLcmQueueCapacity = 100000;
   std::vector<std::unique_ptr<RawSubscription>> subscriptions;
   for (const std::string& channel :
-       {channels.keyframe, channels.loop, channels.session, channels.solution_request}) {
+       {channels.keyframe,
+        channels.loop,
+        channels.session,
+        channels.solution_request,
+        channels.correction}) {  // its own, to notice another daemon publishing there
     subscriptions.push_back(
         std::make_unique<RawSubscription>(&lcm, channel, receive, kLcmQueueCapacity));
   }

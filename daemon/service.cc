@@ -1244,7 +1244,8 @@ struct Service::State {
     return applied;
   }
 
-  std::string journal_error;  // the latest journal failure (stats_mutex)
+  std::string journal_error;     // the latest journal failure (stats_mutex)
+  std::set<std::string> rivals;  // other daemons heard on our correction channel (stats_mutex)
 
   static constexpr std::chrono::milliseconds kRefreshPeriod{250};
   std::chrono::steady_clock::time_point last_refresh = std::chrono::steady_clock::now();
@@ -1275,6 +1276,22 @@ Service::~Service() = default;
 bool Service::Receive(const std::string& channel, const uint8_t* data, int size) {
   State& st = *state_;
   const DaemonChannels& ch = st.daemon.channels;
+  if (channel == ch.correction) {
+    // Ours come back over multicast; another daemon's means two owners of one stream.
+    correction_t correction;
+    if (!DecodeMessage(data, size, &correction) ||
+        correction.header.sender == st.daemon.daemon_id) {
+      return false;
+    }
+    const std::string rival = correction.header.sender.substr(0, kMaxSenderBytes);
+    st.WarnOnce("rival",
+                rival,
+                "daemon \"" + rival + "\" also publishes on " + ch.correction +
+                    ": give each daemon its own output channels (README, \"Fleets\")");
+    std::lock_guard<std::mutex> lock(st.stats_mutex);
+    if (st.rivals.size() < 16) st.rivals.insert(rival);
+    return false;
+  }
   if (channel == ch.solution_request) {
     solution_request_t request;
     if (!DecodeMessage(data, size, &request)) return false;
@@ -1509,6 +1526,10 @@ status_t Service::CurrentStatus() const {
   if (status.n_parked >= limits.max_parked) reasons.push_back("max_parked reached");
   if (held >= limits.max_held) reasons.push_back("max_held reached");
   if (!st.journal_error.empty()) reasons.push_back("journal: " + st.journal_error);
+  for (const std::string& rival : st.rivals) {
+    reasons.push_back("daemon \"" + rival + "\" also publishes on " +
+                      st.daemon.channels.correction);
+  }
   for (const std::string& r : reasons) {
     status.degraded_reason += (status.degraded_reason.empty() ? "" : "; ") + r;
   }

@@ -58,7 +58,8 @@ class Service {
 
   // Receiving thread. Decodes one message of an input channel, checks its fields and queues it
   // (or answers an error). Returns true if the message asks for an immediate status (a session
-  // PROGRESS).
+  // PROGRESS). A correction_t on its own correction channel from another daemon_id means two
+  // daemons share one output stream: logged once, and the status says DEGRADED with its name.
   bool Receive(const std::string& channel, const uint8_t* data, int size);
 
   // Receiving thread, every few milliseconds: re-requests what senders' sequence numbers show

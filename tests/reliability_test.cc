@@ -784,6 +784,32 @@ TEST_CASE("At a limit the status says DEGRADED and why, and nothing grows past i
   CHECK_THAT(status.degraded_reason, Contains("max_held"));
 }
 
+TEST_CASE("Another daemon publishing on our correction channel is noticed, ours are not",
+          "[reliability]") {
+  RecordingSink sink;
+  DaemonOptions daemon;
+  daemon.daemon_id = "base-a";
+  Service service(daemon, CaseOptions(), &sink);
+  auto hear = [&](const std::string& sender) {
+    correction_t c{};
+    c.header.sender = sender;
+    c.solution_id = 1;
+    const std::vector<uint8_t> bytes = EncodeMessage(c);
+    service.Receive(daemon.channels.correction, bytes.data(), static_cast<int>(bytes.size()));
+  };
+  hear("base-a");  // our own, back over multicast
+  CHECK(service.CurrentStatus().degraded_reason.empty());
+  hear("base-b");
+  hear("base-b");
+  const status_t status = service.CurrentStatus();
+  CHECK(status.degraded_reason == "daemon \"base-b\" also publishes on IRRR_CORRECTION");
+  CHECK(status.n_errors == 0);
+  service.PublishStatus(status_t::RUNNING);
+  const std::vector<status_t> published = sink.Decoded<status_t>(daemon.channels.status);
+  REQUIRE(published.size() == 1);
+  CHECK(published[0].state == status_t::DEGRADED);
+}
+
 TEST_CASE("A consumer's solution request is answered with every pose and every verdict",
           "[reliability]") {
   const Case& c = IntelCase();
