@@ -69,6 +69,12 @@ void VisitFields(DaemonLimits& limits, Visitor& visit) {
 }
 
 template <class Visitor>
+void VisitFields(DaemonMerge& merge, Visitor& visit) {
+  visit("window_ms", merge.window_ms);
+  visit("senders", merge.senders);
+}
+
+template <class Visitor>
 void VisitFields(DaemonResync& resync, Visitor& visit) {
   visit("interval_ms", resync.interval_ms);
   visit("give_up_ms", resync.give_up_ms);
@@ -90,6 +96,7 @@ void VisitFields(DaemonOptions& options, Visitor& visit) {
   visit("channels", options.channels);
   visit("limits", options.limits);
   visit("resync", options.resync);
+  visit("merge", options.merge);
   visit("journal", options.journal);
   visit("allowed_senders", options.allowed_senders);
   visit("allowed_robots", options.allowed_robots);
@@ -402,6 +409,12 @@ Status DaemonOptions::Validate() const {
     return Status::Error("resync: interval_ms must be >= 1 and give_up_ms >= interval_ms");
   }
   if (journal.snapshot_every < 0) return Status::Error("journal: snapshot_every must be >= 0");
+  if (merge.window_ms < 0) return Status::Error("merge: window_ms must be >= 0");
+  for (const std::string& sender : merge.senders) {
+    if (sender.empty() || sender.size() > 64) {
+      return Status::Error("merge.senders: \"" + sender + "\" must have 1 to 64 characters");
+    }
+  }
   for (const std::string& sender : allowed_senders) {
     if (sender.empty() || sender.size() > 64) {
       return Status::Error("allowed_senders: \"" + sender + "\" must have 1 to 64 characters");

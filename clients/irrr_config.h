@@ -77,6 +77,13 @@ struct DaemonResync {
   int give_up_ms = 10000;  // ... and skipped after this long without progress
 };
 
+// Applying a fleet's inputs in the order of their stamps (the "daemon.merge" object; see
+// daemon/stamp_merger.h).
+struct DaemonMerge {
+  int window_ms = 0;                 // how long an input may wait for a silent sender; 0: off
+  std::vector<std::string> senders;  // senders waited for from the start (a fleet's robots)
+};
+
 // When journal appends reach the disk (see daemon/journal.h).
 enum class JournalSyncPolicy { kNever, kBatch, kAlways };
 
@@ -98,6 +105,7 @@ struct DaemonOptions {
   DaemonChannels channels;
   DaemonLimits limits;
   DaemonResync resync;
+  DaemonMerge merge;
   DaemonJournal journal;
   // Who may send input: header.sender names (a trailing '*' matches any suffix) and robot ids.
   // Empty = everyone. Messages from others are counted (status_t.n_ignored) and ignored.

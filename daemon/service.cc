@@ -14,6 +14,7 @@
 
 #include "daemon/sequencer.h"
 #include "daemon/snapshot.h"
+#include "daemon/stamp_merger.h"
 #include "daemon/wire.h"
 #include "irrr/correction_t.hpp"
 #include "irrr/error_t.hpp"
@@ -357,7 +358,12 @@ struct Service::State {
                                   std::chrono::milliseconds(d.resync.give_up_ms)}),
         se2(o),
         se3(o),
-        start_utime(NowUtime()) {}
+        start_utime(NowUtime()) {
+    if (d.merge.window_ms > 0) {
+      merger = std::make_unique<StampMerger<Input>>(std::chrono::milliseconds(d.merge.window_ms),
+                                                    d.merge.senders);
+    }
+  }
 
   const DaemonOptions daemon;
   const IrrrOptions options;
@@ -375,6 +381,10 @@ struct Service::State {
   mutable std::mutex sequencer_mutex;
   Sequencer<Input> sequencer;
   std::atomic<bool> solution_requested{false};
+  // With daemon.merge: the senders' inputs in stamp order (stamp_merger.h), and the sessions each
+  // sender has open (a sender with none holds nobody back). Under sequencer_mutex.
+  std::unique_ptr<StampMerger<Input>> merger;
+  std::map<std::string, std::set<std::pair<int32_t, int32_t>>> open_sessions;
 
   // Receiving thread -> worker.
   mutable std::mutex queue_mutex;
@@ -533,20 +543,54 @@ struct Service::State {
     if (input.kind == Input::Kind::kSession && input.session.event == session_event_t::PROGRESS) {
       return true;
     }
-    {
-      std::lock_guard<std::mutex> lock(queue_mutex);
-      if (unapplied.load() < daemon.limits.queue_limit) {
-        ++unapplied;
-        queue.push_back(std::move(input));
-        queue_changed.notify_one();
-        return true;
+    if (unapplied.load() < daemon.limits.queue_limit) {
+      ++unapplied;
+      if (merger == nullptr) {
+        Enqueue(std::move(input));
+      } else {
+        Merge(std::move(input));
       }
+      return true;
     }
     Rejection r = RejectionOfInput(daemon.channels, input);
     r.reason = "input queue full (daemon.limits.queue_limit " +
                std::to_string(daemon.limits.queue_limit) + "): not taken, re-requested later";
     Reject(r);
     return false;
+  }
+
+  void Enqueue(Input&& input) {
+    std::lock_guard<std::mutex> lock(queue_mutex);
+    queue.push_back(std::move(input));
+    queue_changed.notify_one();
+  }
+
+  // daemon.merge: holds `input` until its stamp's turn (under sequencer_mutex).
+  void Merge(Input&& input) {
+    const std::string sender = input.header().sender;
+    auto& open = open_sessions[sender];
+    int64_t stamp = StampMerger<Input>::kNoStamp;
+    if (input.kind == Input::Kind::kKeyframe) {
+      stamp = input.keyframe.stamp_utime;
+      open.insert({input.keyframe.robot_id, input.keyframe.session_id});
+    } else if (input.kind == Input::Kind::kSession && input.session.event == session_event_t::END) {
+      open.erase({input.session.robot_id, input.session.session_id});
+    }
+    const auto now = std::chrono::steady_clock::now();
+    merger->Add(sender, stamp, !open.empty(), std::move(input), now);
+    ReleaseMerged(now);
+  }
+
+  void ReleaseMerged(std::chrono::steady_clock::time_point now) {
+    if (merger == nullptr) return;
+    const int late = merger->Release(now, [this](Input&& in) { Enqueue(std::move(in)); });
+    if (late > 0) {
+      WarnOnce("late",
+               "merge",
+               std::to_string(late) + " input(s) waited daemon.merge.window_ms (" +
+                   std::to_string(daemon.merge.window_ms) +
+                   " ms) for a silent sender and went on in arrival order (logged once)");
+    }
   }
 
   void Ignore(const std::string& sender, const char* why) {
@@ -576,6 +620,7 @@ struct Service::State {
       std::lock_guard<std::mutex> lock(sequencer_mutex);
       due = sequencer.DueRequests(now);
       skipped = sequencer.GiveUp(now, [this](Input&& in) { return Take(std::move(in)); });
+      ReleaseMerged(now);
     }
     for (const auto& request : due) {
       resync_request_t r{};

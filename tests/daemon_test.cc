@@ -417,10 +417,10 @@ FleetCase MakeFleetCase(const std::string& dir) {
 
 // Feeds `messages` (each robot its own sender) to a new service; returns its estimate.
 std::vector<Service::SessionEstimate> RunFleet(const std::vector<ReplayMessage>& messages,
+                                               const DaemonOptions& daemon,
                                                std::vector<HypothesisDecision>* decisions,
                                                status_t* status) {
   RecordingSink sink;
-  DaemonOptions daemon;
   Service service(daemon, TestOptions(), &sink);
   SenderFleet fleet("robot", daemon.channels, /*first_robot=*/1, /*num_robots=*/2);
   for (const ReplayMessage& m : messages) {
@@ -465,9 +465,9 @@ TEST_CASE(
   std::vector<HypothesisDecision> decisions[2];
   status_t status[2];
   const std::vector<Service::SessionEstimate> first =
-      RunFleet(one_then_two, &decisions[0], &status[0]);
+      RunFleet(one_then_two, DaemonOptions(), &decisions[0], &status[0]);
   const std::vector<Service::SessionEstimate> second =
-      RunFleet(two_then_one, &decisions[1], &status[1]);
+      RunFleet(two_then_one, DaemonOptions(), &decisions[1], &status[1]);
   for (int k = 0; k < 2; ++k) {
     INFO("order " << k);
     CHECK(status[k].n_errors == 0);
@@ -511,6 +511,40 @@ TEST_CASE(
   const Pose2 end_first = pose_of(first, 2, 199);
   const Pose2 end_second = pose_of(second, 2, 199);
   CHECK((end_first.translation() - end_second.translation()).norm() < 0.1);
+
+  // With daemon.merge both orders are applied by stamp: the file's own order, so both decide
+  // exactly as RunIncrementalIrrr on the file, pose for pose.
+  DaemonOptions merged;
+  merged.merge.window_ms = 60000;
+  merged.merge.senders = {"robot/robot1", "robot/robot2"};
+  std::vector<Pose2> expected_estimate;
+  const std::vector<LoopDecision> expected =
+      RunIncrementalIrrr(c.graph, TestOptions(), &expected_estimate, nullptr);
+  for (const auto* order : {&one_then_two, &two_then_one}) {
+    std::vector<HypothesisDecision> got;
+    status_t got_status;
+    const std::vector<Service::SessionEstimate> estimate =
+        RunFleet(*order, merged, &got, &got_status);
+    CHECK(got_status.n_errors == 0);
+    CHECK(got_status.queue_depth == 0);
+    REQUIRE(got.size() == decisions[0].size());
+    for (const HypothesisDecision& d : got) {
+      const LoopDecision& want = expected[c.graph_edge_of_file_edge[d.hypothesis_id]];
+      INFO("hypothesis " << d.hypothesis_id);
+      CHECK(d.decision.state == want.state);
+      CHECK(d.decision.step == want.step);
+    }
+    double worst = 0.0;
+    for (const Service::SessionEstimate& e : estimate) {
+      for (size_t k = 0; k < e.poses.size(); ++k) {
+        Pose2 p;
+        REQUIRE(PoseFromWire(e.poses[k], "pose", &p).ok());
+        const Pose2& want = expected_estimate[c.graph.FindVertex(e.first_key + k)];
+        worst = std::max(worst, (p.translation() - want.translation()).norm());
+      }
+    }
+    CHECK(worst < 1e-6);
+  }
 }
 
 TEST_CASE("Every kind of bad input is answered on the error channel and nothing valid is lost",
