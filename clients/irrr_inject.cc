@@ -380,7 +380,7 @@ int Publish(const Arguments& args,
   return EX_OK;
 }
 
-int Run(const Arguments& args) {
+int Run(Arguments args) {
   DaemonOptions daemon;
   IrrrOptions options;
   if (!args.config.empty()) {
@@ -389,6 +389,8 @@ int Run(const Arguments& args) {
       return EX_CONFIG;
     }
   }
+  // The daemon's network, unless --lcm-url says otherwise.
+  if (args.lcm_url.empty()) args.lcm_url = daemon.lcm_url;
   const DaemonChannels& channels = daemon.channels;
   std::vector<std::vector<ReplayMessage>> robots;
   for (size_t k = 0; k < args.inputs.size(); ++k) {
@@ -444,7 +446,10 @@ int main(int argc, char** argv) {
   irrr::Arguments args;
   CLI::App app{"irrr-inject: replay pose-graph files as LCM messages for irrrd"};
   app.add_option("inputs", args.inputs, "g2o or TORO files, one robot each")->required();
-  app.add_option("--lcm-url", args.lcm_url, "LCM URL (default: LCM_DEFAULT_URL or LCM's)");
+  app.add_option(
+      "--lcm-url",
+      args.lcm_url,
+      "LCM URL (default: the --config file's daemon.lcm_url, else LCM_DEFAULT_URL or LCM's)");
   app.add_option("--rate", args.rate, "messages per second; 0: as fast as the daemon absorbs them")
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();

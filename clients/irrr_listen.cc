@@ -471,7 +471,7 @@ int WriteOutputs(const Arguments& args, const Listener& listener) {
   return code;
 }
 
-int Run(const Arguments& args) {
+int Run(Arguments args) {
   DaemonOptions daemon;
   IrrrOptions options;
   if (!args.config.empty()) {
@@ -480,6 +480,8 @@ int Run(const Arguments& args) {
       return EX_CONFIG;
     }
   }
+  // The daemon's network, unless --lcm-url says otherwise.
+  if (args.lcm_url.empty()) args.lcm_url = daemon.lcm_url;
   const DaemonChannels& channels = daemon.channels;
   sigset_t signals;
   sigemptyset(&signals);
@@ -595,7 +597,10 @@ int Run(const Arguments& args) {
 int main(int argc, char** argv) {
   irrr::Arguments args;
   CLI::App app{"irrr-listen: keep irrrd's latest map and verdicts, write them on exit"};
-  app.add_option("--lcm-url", args.lcm_url, "LCM URL (default: LCM_DEFAULT_URL or LCM's)");
+  app.add_option(
+      "--lcm-url",
+      args.lcm_url,
+      "LCM URL (default: the --config file's daemon.lcm_url, else LCM_DEFAULT_URL or LCM's)");
   app.add_option("--output", args.output, "write the map here on exit (g2o; TORO for *.graph)");
   app.add_option("--decisions", args.decisions, "write the decisions CSV here on exit");
   app.add_option(
