@@ -1,8 +1,9 @@
 // A fleet across simulated hosts (tools/netns-fleet): three robots and a base station, each in its
 // own network namespace, on one bridge; LCM over UDP multicast with ttl=1. Each robot injects its
 // own part of one multi-session file (irrr-inject --only-robot) and listens for its own poses and
-// transforms (irrr-listen --robot); two daemons on the base station hear the same inputs and
-// publish on channels of their own. Hidden ([.][fleet]): CTest runs it through tools/netns-fleet.
+// transforms (irrr-listen --robot); two daemons, one on the base station and one on robot 1's
+// host, hear the same inputs and publish on channels of their own. Hidden ([.][fleet]): CTest runs
+// it through tools/netns-fleet.
 
 #include <cmath>
 #include <cstdlib>
@@ -47,11 +48,11 @@ void SetPort(const std::string& host, bool up) {
 
 struct Fleet {
   std::string dir;
-  std::string input;      // Intel's first 600 poses in four sessions, with wrong loops
-  std::string labels;     // which loops are wrong
-  std::string reference;  // the optimum of the clean, unsplit graph: the ground truth
-  std::string config_a;   // daemon base-a (the standard channels)
-  std::string config_b;   // daemon base-b (its own output channels)
+  std::string input;           // Intel's first 600 poses in four sessions, with wrong loops
+  std::string labels;          // which loops are wrong
+  std::string reference;       // the optimum of the clean, unsplit graph: the ground truth
+  std::string config_a;        // daemon base-a (the standard channels)
+  std::string config_standby;  // daemon standby (its own output channels)
 };
 
 Fleet MakeFleet(const std::string& dir) {
@@ -82,34 +83,38 @@ Fleet MakeFleet(const std::string& dir) {
   WriteText(f.config_a,
             "{\"daemon\": {\"daemon_id\": \"base-a\", " + common +
                 "}, \"irrr\": {\"cluster_gap\": 10}}\n");
-  f.config_b = dir + "/base-b.json";
-  WriteText(f.config_b,
-            "{\"daemon\": {\"daemon_id\": \"base-b\", " + common +
-                ", \"channels\": {\"correction\": \"IRRR_CORRECTION/base-b\", \"verdicts\": "
-                "\"IRRR_VERDICTS/base-b\", \"solution\": \"IRRR_SOLUTION/base-b\", \"status\": "
-                "\"IRRR_STATUS/base-b\", \"error\": \"IRRR_ERROR/base-b\"}}, \"irrr\": "
+  f.config_standby = dir + "/standby.json";
+  WriteText(f.config_standby,
+            "{\"daemon\": {\"daemon_id\": \"standby\", " + common +
+                ", \"channels\": {\"correction\": \"IRRR_CORRECTION/standby\", \"verdicts\": "
+                "\"IRRR_VERDICTS/standby\", \"solution\": \"IRRR_SOLUTION/standby\", \"status\": "
+                "\"IRRR_STATUS/standby\", \"error\": \"IRRR_ERROR/standby\"}}, \"irrr\": "
                 "{\"cluster_gap\": 10}}\n");
   RunBatch(dir, f.input, f.config_a);  // batch.csv, batch.g2o: the file's own arrival order
   return f;
 }
 
-// One run of the fleet: both daemons and a listener for each on the base station, each robot's
-// injector and listener on its host; `partition` cuts robot 2 off for a while mid-stream.
+// One run of the fleet: daemon base-a and its listener on the base station, standby and its
+// listener on robot 1's host, each robot's injector and listener on its host; `partition` cuts
+// robot 2 off for a while mid-stream.
 void RunFleet(const Fleet& f, const std::string& run, bool partition) {
   const std::string dir = f.dir + "/" + run;
   std::filesystem::create_directories(dir);
   const std::string irrrd = std::string(IRRRD) + " --config ";
   auto daemon_a = StartDaemon(On("base", irrrd + Quoted(f.config_a)), dir + "/base-a.log");
-  auto daemon_b = StartDaemon(On("base", irrrd + Quoted(f.config_b)), dir + "/base-b.log");
+  // The second daemon runs on robot 1's host: it hears the fleet in another order.
+  auto daemon_standby =
+      StartDaemon(On("r1", irrrd + Quoted(f.config_standby)), dir + "/standby.log");
   const std::string listen = std::string(IRRR_LISTEN) + " --config ";
   Background listen_a(
       On("base",
          listen + Quoted(f.config_a) + " --decisions " + Quoted(dir + "/listen.csv") +
              " --output " + Quoted(dir + "/listen.g2o")),
       dir + "/listen.log");
-  Background listen_b(
-      On("base", listen + Quoted(f.config_b) + " --decisions " + Quoted(dir + "/listen_b.csv")),
-      dir + "/listen_b.log");
+  Background listen_standby(
+      On("r1",
+         listen + Quoted(f.config_standby) + " --decisions " + Quoted(dir + "/listen_standby.csv")),
+      dir + "/listen_standby.log");
   std::vector<std::unique_ptr<Background>> robot_listeners;
   for (int r = 1; r <= 3; ++r) {
     const std::string name = dir + "/robot" + std::to_string(r);
@@ -153,10 +158,10 @@ void RunFleet(const Fleet& f, const std::string& run, bool partition) {
   // Listeners first: before writing, each asks its daemon for the whole solution.
   for (auto& l : robot_listeners) CHECK(l->Stop(SIGINT) == 0);
   CHECK(listen_a.Stop(SIGINT) == 0);
-  CHECK(listen_b.Stop(SIGINT) == 0);
+  CHECK(listen_standby.Stop(SIGINT) == 0);
   CHECK(daemon_a->Stop() == 0);
-  CHECK(daemon_b->Stop() == 0);
-  for (const char* daemon : {"base-a", "base-b"}) {
+  CHECK(daemon_standby->Stop() == 0);
+  for (const char* daemon : {"base-a", "standby"}) {
     const std::string log = ReadText(dir + "/" + daemon + ".log");
     CHECK_THAT(log, Contains("0 input(s) rejected"));
     CHECK_THAT(log, !Contains("also publishes"));  // nobody else on its correction channel
@@ -285,12 +290,12 @@ TEST_CASE(
     INFO(run);
     RunFleet(f, run, partition);
     const std::string dir = f.dir + "/" + run;
-    // The base station's daemons: the file's own order (stamps), so irrr-batch's decisions and
-    // map; and the second daemon's decisions are the first's, row for row.
+    // Both daemons apply the file's own order (stamps), so irrr-batch's decisions and map; and
+    // the second daemon's decisions are the first's, row for row, though it heard another order.
     std::filesystem::copy_file(f.dir + "/batch.csv", dir + "/batch.csv");
     std::filesystem::copy_file(f.dir + "/batch.g2o", dir + "/batch.g2o");
     CheckSameAsBatch(dir, /*all_edges_heard=*/!partition);
-    CHECK(ReadText(dir + "/listen_b.csv") == ReadText(dir + "/listen.csv"));
+    CHECK(ReadText(dir + "/listen_standby.csv") == ReadText(dir + "/listen.csv"));
     CheckRobots(f, dir);
     if (partition) {
       // Robot 2's messages sent while its port was down came back through resync.
