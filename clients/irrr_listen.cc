@@ -1,7 +1,8 @@
 // irrr-listen: hears what irrrd publishes and keeps the latest map and every verdict.
 //
 //   irrr-listen [--lcm-url URL] [--output MAP.g2o] [--decisions OUT.csv] [--labels LABELS.csv]
-//               [--transforms OUT.csv] [--robot R] [--idle-exit S] [--config FILE]
+//               [--transforms OUT.csv] [--robot R] [--plot MAP.svg] [--idle-exit S]
+//               [--config FILE]
 //
 // It assembles each solution (a correction_t with all its verdict and pose chunks) and keeps,
 // per session, the newest estimate; keys that no solution has covered yet continue the latest
@@ -17,6 +18,8 @@
 //    hypothesis_id): edge_index = hypothesis_id, from/to = keys, session_from/to = session ids;
 //  - --transforms: per session, the latest map_T_odom (session_transform_t): where the session's
 //    odometry frame lies in its component's map frame.
+//  - --plot: the map with every verdict, the odometry beside it and the time of each step
+//    (clients/plots.h).
 // --robot R keeps only robot R's part, as a robot of a fleet would: its sessions' poses and
 // transforms, and the hypotheses with an end in them.
 // --labels prints precision and recall against irrr-corrupt's labels. Exit codes follow
@@ -42,12 +45,14 @@
 #include <vector>
 
 #include <fmt/core.h>
+#include <fmt/ranges.h>
 #include <CLI/CLI.hpp>
 #include <lcm/lcm-cpp.hpp>
 
 #include "clients/graph_files.h"
 #include "clients/irrr_config.h"
 #include "clients/loop_csv.h"
+#include "clients/plots.h"
 #include "daemon/raw_subscription.h"
 #include "daemon/wire.h"
 #include "irrr/correction_t.hpp"
@@ -201,6 +206,48 @@ class Listener {
     return rows;
   }
 
+  // The map for plots.h: each session at its estimate (`initial`: at the odometry poses its
+  // keyframes carried), every hypothesis heard between two known keys with its verdict.
+  template <class Pose>
+  MapPlot Plot(const std::string& title, bool initial) const {
+    MapPlot plot;
+    plot.title = title;
+    plot.three_d = Pose::kTranslationDim == 3;
+    std::map<std::pair<SessionName, int64_t>, PlotPoint> where;
+    auto point = [](const Pose& p) {
+      PlotPoint q;
+      q.x = p.translation()[0];
+      q.y = p.translation()[1];
+      if constexpr (Pose::kTranslationDim == 3) q.z = p.translation()[2];
+      return q;
+    };
+    for (const auto& [name, s] : sessions_) {
+      if (s.dim != WireDim<Pose>()) continue;
+      plot.session_names.push_back(fmt::format("robot {} session {}", name.first, name.second));
+      std::vector<PlotPoint> path;
+      for (const auto& [key, pose] : SessionPoses<Pose>(s, initial)) {
+        path.push_back(point(pose));
+        where[{name, key}] = path.back();
+      }
+      plot.sessions.push_back(std::move(path));
+    }
+    for (const auto& [name, h] : hypotheses_) {
+      const auto from =
+          where.find({{h.hypothesis.robot_from, h.hypothesis.session_from}, h.hypothesis.key_from});
+      const auto to =
+          where.find({{h.hypothesis.robot_to, h.hypothesis.session_to}, h.hypothesis.key_to});
+      if (!h.heard || from == where.end() || to == where.end()) continue;
+      PlotLoop loop;
+      loop.from = from->second;
+      loop.to = to->second;
+      if (h.judged && !initial) LoopStateFromWire(h.verdict.state, &loop.state);
+      plot.loops.push_back(loop);
+    }
+    return plot;
+  }
+
+  const std::vector<double>& step_decide_ms() const { return decide_ms_; }
+
   // The map as a graph file: every keyframe heard (or estimated), odometry and accepted loops.
   template <class Pose>
   GraphFile<Pose> Map() const {
@@ -218,29 +265,12 @@ class Listener {
     GraphFile<Pose> file;
     for (const auto& [name, s] : sessions_) {
       if (s.dim != WireDim<Pose>()) continue;
-      std::set<int64_t> session_keys;
-      for (const auto& [key, unused] : s.estimate) session_keys.insert(key);
-      for (const auto& [key, unused] : s.keyframes) session_keys.insert(key);
-      // Keys beyond the solutions continue the estimate along odometry, as the daemon's do;
-      // a session no solution covered starts at the identity (its own frame).
-      Pose previous;
-      bool have_previous = false;
-      for (int64_t key : session_keys) {
-        Pose pose;
-        const auto estimated = s.estimate.find(key);
-        const auto heard = s.keyframes.find(key);
-        if (estimated != s.estimate.end()) {
-          PoseFromWire(estimated->second, "pose", &pose);
-        } else if (have_previous && heard != s.keyframes.end() && heard->second.has_odom_edge) {
-          Pose delta;
-          PoseFromWire(heard->second.odom_delta, "odom_delta", &delta);
-          pose = previous * delta;
-        }
-        previous = pose;
-        have_previous = true;
+      const std::map<int64_t, Pose> poses = SessionPoses<Pose>(s, /*odometry=*/false);
+      for (const auto& [key, pose] : poses) {
         file.vertices.push_back({id_of(name.first, key), pose, 0});
+        const auto heard = s.keyframes.find(key);
         if (heard != s.keyframes.end() && heard->second.has_odom_edge &&
-            session_keys.count(key - 1) != 0) {
+            poses.count(key - 1) != 0) {
           FileEdge<Pose> edge;
           edge.from = id_of(name.first, key - 1);
           edge.to = id_of(name.first, key);
@@ -291,6 +321,41 @@ class Listener {
   }
 
   int64_t latest_solution() const { return latest_solution_; }
+
+  // A session's poses by key: the estimate (`odometry`: the keyframes' odometry poses); keys
+  // beyond the solutions continue the estimate along odometry, as the daemon's do, and a session
+  // no solution covered starts at the identity (its own frame).
+  template <class Pose>
+  static std::map<int64_t, Pose> SessionPoses(const SessionState& s, bool odometry) {
+    std::map<int64_t, Pose> poses;
+    if (odometry) {
+      for (const auto& [key, keyframe] : s.keyframes) {
+        PoseFromWire(keyframe.odom_pose, "odom_pose", &poses[key]);
+      }
+      return poses;
+    }
+    std::set<int64_t> keys;
+    for (const auto& [key, unused] : s.estimate) keys.insert(key);
+    for (const auto& [key, unused] : s.keyframes) keys.insert(key);
+    Pose previous;
+    bool have_previous = false;
+    for (int64_t key : keys) {
+      Pose pose;
+      const auto estimated = s.estimate.find(key);
+      const auto heard = s.keyframes.find(key);
+      if (estimated != s.estimate.end()) {
+        PoseFromWire(estimated->second, "pose", &pose);
+      } else if (have_previous && heard != s.keyframes.end() && heard->second.has_odom_edge) {
+        Pose delta;
+        PoseFromWire(heard->second.odom_delta, "odom_delta", &delta);
+        pose = previous * delta;
+      }
+      previous = pose;
+      have_previous = true;
+      poses[key] = pose;
+    }
+    return poses;
+  }
   // Complete solutions (every pose and verdict, the answer to a solution_request_t) assembled.
   int complete_solutions() const { return complete_solutions_; }
   const std::vector<double>& latencies_ms() const { return latencies_ms_; }
@@ -385,6 +450,7 @@ struct Arguments {
   std::string output;
   std::string decisions;
   std::string transforms;
+  std::string plot;
   int32_t robot = -1;
   double idle_exit_s = 0.0;
   double final_wait_s = 5.0;
@@ -414,6 +480,27 @@ Status WriteMap(const Listener& listener, const std::string& path) {
   const GraphFile<Pose> map = listener.Map<Pose>();
   return WriteFileAtomically(
       path, [&](std::ostream& out) { return WriteGraphFile(out, FormatForPath(path), map); });
+}
+
+// The map with every verdict, the keyframes' odometry beside it, and the time of each step
+// (plots.h; SE(3) when the daemon had SE(3) sessions).
+template <class Pose>
+Status WritePlots(const std::string& path,
+                  const Listener& listener,
+                  std::vector<std::string>* written) {
+  const PlotFiles files = PlotFilesFor(path);
+  const MapPlot map = listener.Plot<Pose>("irrrd's map", /*initial=*/false);
+  const MapPlot odometry = listener.Plot<Pose>("odometry", /*initial=*/true);
+  const std::pair<std::string, std::string> plots[] = {
+      {files.map, MapSvg(map)},
+      {files.before_after, BeforeAfterSvg(odometry, map)},
+      {files.steps, StepTimeSvg("irrrd: time to decide each step", listener.step_decide_ms())},
+  };
+  for (const auto& [file, svg] : plots) {
+    if (Status s = WritePlot(file, svg); !s.ok()) return s;
+    written->push_back(file);
+  }
+  return Status::Ok();
 }
 
 int WriteOutputs(const Arguments& args, const Listener& listener) {
@@ -450,6 +537,18 @@ int WriteOutputs(const Arguments& args, const Listener& listener) {
       code = EX_CANTCREAT;
     } else {
       fmt::print("transforms {}\n", args.transforms);
+    }
+  }
+  if (!args.plot.empty()) {
+    const bool se3 = listener.HasDimension(keyframe_t::DIM_SE3);
+    std::vector<std::string> written;
+    if (Status s = se3 ? WritePlots<Pose3>(args.plot, listener, &written)
+                       : WritePlots<Pose2>(args.plot, listener, &written);
+        !s.ok()) {
+      fmt::print(stderr, "irrr-listen: {}\n", s.message());
+      code = EX_CANTCREAT;
+    } else {
+      fmt::print("plots     {}\n", fmt::join(written, ", "));
     }
   }
   if (!args.output.empty()) {
@@ -605,6 +704,10 @@ int main(int argc, char** argv) {
   app.add_option("--decisions", args.decisions, "write the decisions CSV here on exit");
   app.add_option(
       "--transforms", args.transforms, "write each session's latest map_T_odom (CSV) here on exit");
+  app.add_option("--plot",
+                 args.plot,
+                 "on exit, draw the map with every verdict here (SVG, or PNG with rsvg-convert), "
+                 "and beside it the odometry and the time per step");
   app.add_option("--robot",
                  args.robot,
                  "keep only this robot's sessions and the hypotheses that touch them")

@@ -1,0 +1,96 @@
+// irrr-view's live map in headless Chromium (Debian's chromium), against irrrd over UDP multicast
+// inside a private network namespace (tools/netns-run runs the [udpm] cases).
+
+#include <chrono>
+#include <string>
+#include <thread>
+
+#include <catch2/catch.hpp>
+
+#include "tests/processes.h"
+#include "tests/test_files.h"
+
+namespace irrr {
+namespace {
+
+using Catch::Matchers::Contains;
+
+int Count(const std::string& text, const std::string& what) {
+  int n = 0;
+  for (size_t at = text.find(what); at != std::string::npos; at = text.find(what, at + 1)) ++n;
+  return n;
+}
+
+// The map the page drew: its <svg id="map"> element.
+std::string DrawnMap(const std::string& page) {
+  const size_t begin = page.find("<svg id=\"map\"");
+  const size_t end = page.find("</svg>", begin);
+  return begin == std::string::npos || end == std::string::npos ? ""
+                                                                : page.substr(begin, end - begin);
+}
+
+// Chromium as the machine's notes say to run it here: headless, no sandbox (root), no GPU, and
+// nothing of its own on the network. --virtual-time-budget lets the page's script run before
+// --dump-dom prints the document (to the log, after what Chromium says on stderr).
+std::string Chromium(const std::string& dir, const std::string& url) {
+  return "chromium --headless --no-sandbox --disable-gpu --disable-quic --no-first-run "
+         "--disable-background-networking --disable-component-update --disable-sync "
+         "--user-data-dir=" +
+         Quoted(dir + "/chromium") + " --virtual-time-budget=30000 --dump-dom '" + url + "'";
+}
+
+TEST_CASE("udpm: the live map in headless Chromium appears, then updates as corrections arrive",
+          "[.][udpm]") {
+  REQUIRE(std::system("command -v chromium > /dev/null") == 0);  // tools/setup installs it
+  const std::string dir = TestDirectory("view");
+  const std::string config = dir + "/irrrd.json";
+  WriteText(config,
+            "{\"daemon\": {\"lcm_url\": \"udpm://239.255.76.67:7667?ttl=0&recv_buf_size=2097152\","
+            " \"status_hz\": 5}, \"irrr\": {\"cluster_gap\": 10}}\n");
+  const std::string first = dir + "/intel200.g2o";
+  const std::string second = dir + "/intel150.g2o";
+  WriteIntelPrefix(200, first);
+  WriteIntelPrefix(150, second);
+
+  auto daemon = StartDaemon(std::string(IRRRD) + " --config " + Quoted(config), dir + "/irrrd.log");
+  Background view(std::string(IRRR_VIEW) + " --config " + Quoted(config) + " --port 18765",
+                  dir + "/view.log");
+  REQUIRE(WaitForText(dir + "/view.log", "the live map is on http://127.0.0.1:18765/", 10));
+  const std::string inject =
+      std::string(IRRR_INJECT) + " --config " + Quoted(config) + " --rate 0 --wait --timeout 120 ";
+  REQUIRE(RunTool(inject + Quoted(first) + " --sender first", dir + "/inject1.log") == 0);
+
+  // The map appears: robot 0's session, its loops.
+  REQUIRE(RunTool(Chromium(dir, "http://127.0.0.1:18765/?events=1"), dir + "/page1.html") == 0);
+  const std::string page1 = ReadText(dir + "/page1.html");
+  const std::string map1 = DrawnMap(page1);
+  INFO(page1.substr(0, 3000));
+  CHECK_THAT(page1, Contains("data-updates=\"1\""));
+  CHECK(Count(map1, "class=\"session\"") == 1);
+  CHECK(Count(map1, "class=\"loop accepted\"") > 50);
+  CHECK_THAT(page1, Contains("1 session(s)"));
+
+  // It updates: a page waiting for two maps gets the second when robot 1 arrives.
+  Background browser(Chromium(dir, "http://127.0.0.1:18765/?events=2"), dir + "/page2.html");
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(30);
+  while (Count(ReadText(dir + "/view.log"), "a page connected") < 2 &&
+         std::chrono::steady_clock::now() < deadline) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+  REQUIRE(Count(ReadText(dir + "/view.log"), "a page connected") == 2);
+  REQUIRE(RunTool(inject + Quoted(second) + " --first-robot 1 --sender second",
+                  dir + "/inject2.log") == 0);
+  CHECK(browser.Wait() == 0);
+  const std::string page2 = ReadText(dir + "/page2.html");
+  const std::string map2 = DrawnMap(page2);
+  INFO(page2.substr(0, 3000));
+  CHECK_THAT(page2, Contains("data-updates=\"2\""));
+  CHECK(Count(map2, "class=\"session\"") == 2);
+  CHECK(Count(map2, "class=\"loop accepted\"") > Count(map1, "class=\"loop accepted\""));
+  CHECK_THAT(page2, Contains("2 session(s)"));
+  CHECK(view.Stop(SIGINT) == 0);
+  CHECK(daemon->Stop() == 0);
+}
+
+}  // namespace
+}  // namespace irrr
