@@ -214,19 +214,12 @@ class Listener {
     plot.title = title;
     plot.three_d = Pose::kTranslationDim == 3;
     std::map<std::pair<SessionName, int64_t>, PlotPoint> where;
-    auto point = [](const Pose& p) {
-      PlotPoint q;
-      q.x = p.translation()[0];
-      q.y = p.translation()[1];
-      if constexpr (Pose::kTranslationDim == 3) q.z = p.translation()[2];
-      return q;
-    };
     for (const auto& [name, s] : sessions_) {
       if (s.dim != WireDim<Pose>()) continue;
       plot.session_names.push_back(fmt::format("robot {} session {}", name.first, name.second));
       std::vector<PlotPoint> path;
       for (const auto& [key, pose] : SessionPoses<Pose>(s, initial)) {
-        path.push_back(point(pose));
+        path.push_back(ToPlotPoint(pose));
         where[{name, key}] = path.back();
       }
       plot.sessions.push_back(std::move(path));

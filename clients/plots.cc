@@ -335,20 +335,13 @@ MapPlot MakeMapPlot(const std::string& title,
   MapPlot map;
   map.title = title;
   map.three_d = Pose::kTranslationDim == 3;
-  auto point = [](const Pose& p) {
-    PlotPoint q;
-    q.x = p.translation()[0];
-    q.y = p.translation()[1];
-    if constexpr (Pose::kTranslationDim == 3) q.z = p.translation()[2];
-    return q;
-  };
   for (int s = 0; s < graph.num_sessions(); ++s) {
     map.session_names.push_back("session " + std::to_string(graph.session(s).id));
     std::vector<PlotPoint> path;
     std::vector<PlotPoint> truth;
     for (int v : graph.session(s).vertices) {
-      path.push_back(point(poses[v]));
-      if (!ground_truth.empty()) truth.push_back(point(ground_truth[v]));
+      path.push_back(ToPlotPoint(poses[v]));
+      if (!ground_truth.empty()) truth.push_back(ToPlotPoint(ground_truth[v]));
     }
     map.sessions.push_back(std::move(path));
     if (!ground_truth.empty()) map.ground_truth.push_back(std::move(truth));
@@ -357,8 +350,8 @@ MapPlot MakeMapPlot(const std::string& title,
     const Edge<Pose>& edge = graph.edge(e);
     if (edge.kind != EdgeKind::kLoop) continue;
     PlotLoop loop;
-    loop.from = point(poses[edge.from]);
-    loop.to = point(poses[edge.to]);
+    loop.from = ToPlotPoint(poses[edge.from]);
+    loop.to = ToPlotPoint(poses[edge.to]);
     loop.state = decisions.empty() ? LoopState::kPending : decisions[e].state;
     map.loops.push_back(loop);
   }

@@ -41,6 +41,16 @@ struct MapPlot {
   std::vector<PlotLoop> loops;
 };
 
+// Where a pose is, for a plot.
+template <class Pose>
+PlotPoint ToPlotPoint(const Pose& pose) {
+  PlotPoint p;
+  p.x = pose.translation()[0];
+  p.y = pose.translation()[1];
+  if constexpr (Pose::kTranslationDim == 3) p.z = pose.translation()[2];
+  return p;
+}
+
 // A MapPlot of `graph` at `poses` (one per vertex): sessions by index, every loop edge with its
 // decision (`decisions` per edge; empty: every loop pending), ground truth if not empty.
 template <class Pose>
