@@ -11,9 +11,10 @@
 // Each sender's inputs come in its own order (sequencer.h) with non-decreasing stamps (a
 // keyframe's stamp_utime; anything else carries its sender's latest). The merge hands over the
 // input with the smallest (stamp, sender) once every other open sender has shown a larger stamp
-// (or the same one, when it sorts after), or once it has waited `window`. A sender is open while it has sessions that have not
-// ENDed (a robot that is done holds nobody back), or, if named in `expected`, from the start
-// until it has been heard and closed. Single threaded, like the sequencer.
+// (or the same one, when it sorts after), or once it has waited `window`. A sender is open while it
+// has sessions that have not ENDed (a robot that is done holds nobody back), or, if named in
+// `expected`, from the start until it has been heard and closed. Single threaded, like the
+// sequencer.
 
 #include <chrono>
 #include <cstdint>
