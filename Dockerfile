@@ -17,7 +17,8 @@
 
 FROM debian:bookworm AS build
 # liblcm-bin for lcm-gen, libglib2.0-dev because lcm.pc requires glib-2.0; libopenblas0-serial is
-# the BLAS that CHOLMOD uses on the developers' machines (tools/setup), kept the same here.
+# the BLAS that CHOLMOD uses on the developers' machines (tools/setup), kept the same here;
+# zlib1g-dev for the journal's CRC-32, libcpp-httplib-dev for irrr-view.
 # No catch2: the tests are not built (see below).
 RUN apt-get update \
  && apt-get install -y --no-install-recommends \
@@ -25,6 +26,7 @@ RUN apt-get update \
       liblcm-dev liblcm-bin libglib2.0-dev \
       libeigen3-dev libsuitesparse-dev libopenblas0-serial \
       libboost-dev libfmt-dev libcli11-dev nlohmann-json3-dev libspdlog-dev \
+      zlib1g-dev libcpp-httplib-dev \
  && rm -rf /var/lib/apt/lists/*
 WORKDIR /src
 COPY . .
@@ -40,9 +42,11 @@ FROM debian:bookworm-slim AS runtime
 # liblcm1 (which pulls in libglib2.0-0), libspdlog1.10 + libfmt9, libcholmod3 (pulls in the rest of
 # SuiteSparse, metis and libgomp1). Naming libopenblas0-serial makes apt pick it for CHOLMOD's
 # libblas.so.3/liblapack.so.3 instead of the slow reference BLAS (libblas3/liblapack3).
+# libcpp-httplib0.11 is for irrr-view, the live map, copied with the other clients.
 RUN apt-get update \
  && apt-get install -y --no-install-recommends \
       liblcm1 libglib2.0-0 libspdlog1.10 libfmt9 libcholmod3 libopenblas0-serial \
+      libcpp-httplib0.11 \
  && rm -rf /var/lib/apt/lists/* \
  && groupadd --gid 10001 irrrd \
  && useradd --uid 10001 --gid irrrd --no-create-home --home-dir /nonexistent \
