@@ -460,6 +460,15 @@ Status LoadDaemonConfig(const std::string& path, DaemonOptions* daemon, IrrrOpti
   return Status::Ok();
 }
 
+Status LoadClientConfig(const std::string& path, DaemonOptions* daemon, std::string* lcm_url) {
+  if (!path.empty()) {
+    IrrrOptions options;
+    if (Status s = LoadDaemonConfig(path, daemon, &options); !s.ok()) return s;
+  }
+  if (lcm_url->empty()) *lcm_url = daemon->lcm_url;
+  return Status::Ok();
+}
+
 nlohmann::json DaemonOptionsToJson(const DaemonOptions& options) {
   json object = json::object();
   Writer writer(&object);

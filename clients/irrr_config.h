@@ -124,6 +124,12 @@ Status ParseDaemonConfig(const nlohmann::json& config, DaemonOptions* daemon, Ir
 // LoadConfigFile, then ParseDaemonConfig; errors start with the path.
 Status LoadDaemonConfig(const std::string& path, DaemonOptions* daemon, IrrrOptions* options);
 
+// For the daemon's clients (irrr-inject, irrr-listen, irrr-view): the daemon's configuration at
+// `path` (empty: the defaults) into `daemon`, for its channel names; and its LCM URL into
+// `*lcm_url` unless that is set already (a --lcm-url), so that the clients join the daemon's
+// network. Errors start with the path.
+Status LoadClientConfig(const std::string& path, DaemonOptions* daemon, std::string* lcm_url);
+
 // Every field of `options` under its JSON name (the inverse of ParseDaemonConfig's "daemon").
 nlohmann::json DaemonOptionsToJson(const DaemonOptions& options);
 

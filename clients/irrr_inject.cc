@@ -382,15 +382,10 @@ int Publish(const Arguments& args,
 
 int Run(Arguments args) {
   DaemonOptions daemon;
-  IrrrOptions options;
-  if (!args.config.empty()) {
-    if (Status s = LoadDaemonConfig(args.config, &daemon, &options); !s.ok()) {
-      fmt::print(stderr, "irrr-inject: {}\n", s.message());
-      return EX_CONFIG;
-    }
+  if (Status s = LoadClientConfig(args.config, &daemon, &args.lcm_url); !s.ok()) {
+    fmt::print(stderr, "irrr-inject: {}\n", s.message());
+    return EX_CONFIG;
   }
-  // The daemon's network, unless --lcm-url says otherwise.
-  if (args.lcm_url.empty()) args.lcm_url = daemon.lcm_url;
   const DaemonChannels& channels = daemon.channels;
   std::vector<std::vector<ReplayMessage>> robots;
   for (size_t k = 0; k < args.inputs.size(); ++k) {

@@ -215,14 +215,10 @@ class LiveMap {
 
 int Run(Arguments args) {
   DaemonOptions daemon;
-  IrrrOptions options;
-  if (!args.config.empty()) {
-    if (Status s = LoadDaemonConfig(args.config, &daemon, &options); !s.ok()) {
-      fmt::print(stderr, "irrr-view: {}\n", s.message());
-      return EX_CONFIG;
-    }
+  if (Status s = LoadClientConfig(args.config, &daemon, &args.lcm_url); !s.ok()) {
+    fmt::print(stderr, "irrr-view: {}\n", s.message());
+    return EX_CONFIG;
   }
-  if (args.lcm_url.empty()) args.lcm_url = daemon.lcm_url;
   sigset_t signals;
   sigemptyset(&signals);
   sigaddset(&signals, SIGTERM);

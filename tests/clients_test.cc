@@ -187,6 +187,29 @@ TEST_CASE("Values out of range are rejected by IrrrOptions::Validate", "[config]
              StartsWith("irrr: ") && Contains("cluster_gap"));
 }
 
+TEST_CASE("Clients take the daemon's channels and LCM URL, unless given a URL", "[config]") {
+  const std::string dir = TestDirectory("client_config");
+  const std::string path = dir + "/irrrd.json";
+  WriteText(path,
+            R"({"daemon": {"lcm_url": "udpm://239.255.76.67:7667?ttl=1",)"
+            R"( "channels": {"correction": "C/standby"}}})");
+  DaemonOptions daemon;
+  std::string url;
+  REQUIRE(LoadClientConfig(path, &daemon, &url).ok());
+  CHECK(url == "udpm://239.255.76.67:7667?ttl=1");
+  CHECK(daemon.channels.correction == "C/standby");
+  std::string given = "memq://";
+  REQUIRE(LoadClientConfig(path, &daemon, &given).ok());
+  CHECK(given == "memq://");
+  std::string none;
+  DaemonOptions defaults;
+  REQUIRE(LoadClientConfig("", &defaults, &none).ok());
+  CHECK(none.empty());
+  CHECK(defaults.channels.correction == "IRRR_CORRECTION");
+  const Status missing = LoadClientConfig(dir + "/none.json", &defaults, &none);
+  CHECK_THAT(missing.message(), Catch::Contains("none.json"));
+}
+
 TEST_CASE("The configuration file: comments allowed, other sections ignored", "[config]") {
   const std::string dir = TestDirectory("config_file");
   const std::string good = dir + "/good.json";
