@@ -39,6 +39,8 @@ void VisitFields(IrrrOptions& options, Visitor& visit) {
   visit("retry_within_step", options.retry_within_step);
   visit("local_problems", options.local_problems);
   visit("warm_start", options.warm_start);
+  visit("reuse_solves", options.reuse_solves);
+  visit("reuse_analysis", options.reuse_analysis);
   visit("max_cluster_size", options.max_cluster_size);
   visit("optimizer", options.optimizer);
 }
@@ -93,6 +95,7 @@ void VisitFields(DaemonOptions& options, Visitor& visit) {
   visit("lcm_url", options.lcm_url);
   visit("log_level", options.log_level);
   visit("status_hz", options.status_hz);
+  visit("threads", options.threads);
   visit("channels", options.channels);
   visit("limits", options.limits);
   visit("resync", options.resync);
@@ -384,6 +387,9 @@ Status DaemonOptions::Validate() const {
   }
   if (!(status_hz > 0.0 && status_hz <= 100.0)) {
     return Status::Error("status_hz: must be in (0, 100], got " + std::to_string(status_hz));
+  }
+  if (threads < 0 || threads > 64) {
+    return Status::Error("threads: must be in [0, 64], got " + std::to_string(threads));
   }
   std::set<std::string> names;
   DaemonChannels copy = channels;

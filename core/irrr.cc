@@ -2,7 +2,10 @@
 
 #include <algorithm>
 #include <cmath>
+#include <deque>
 #include <functional>
+#include <map>
+#include <memory>
 #include <tuple>
 
 #include <boost/math/distributions/chi_squared.hpp>
@@ -39,7 +42,14 @@ struct Consensus {
   // Per good cluster: the candidates Algorithm 2 eliminated while it was inconsistent too.
   std::vector<std::vector<int>> opponents;
   int step = 0;
-  int solves = 0;
+  int solves = 0;  // optimizations run (reused ones not counted)
+
+  // Changes whenever `warm` does: warm-started problems of different versions differ.
+  int64_t warm_version = 0;
+  // Optional: runs body(0), ..., body(n - 1), possibly concurrently, and returns when all are
+  // done; with two or more workers, problems the algorithm is about to ask for are prefetched.
+  ParallelFor parallel_for;
+  int workers = 1;
 
   int AddCluster(int a, int b) {
     links.emplace_back();
@@ -156,6 +166,171 @@ struct Consensus {
     }
   }
 
+  // One optimization of Solve, before it runs: the loops (sorted), each session's span and the
+  // start. `key` names it completely: two problems with equal keys have bit-identical optima.
+  struct Problem {
+    std::vector<int> loop_edges;
+    std::vector<int> first;  // per session: first position in the problem (-1: not in it)
+    std::vector<int> last;
+    bool warm_start = false;
+    std::vector<int64_t> key;
+  };
+
+  // The optimum of a Problem: summary with edge_chi2 indexed like the subproblem's edges
+  // (sessions' odometry span by span, then the loops), and its poses span by span.
+  struct Optimum {
+    OptimizerSummary summary;
+    std::vector<int> graph_edge_of_sub;
+    std::vector<Pose> sub_x;
+  };
+
+  std::unique_ptr<Optimizer<Pose>> optimizer;  // SerialOptimizer()
+  // Optima by Problem key (options->reuse_solves), and their keys in the order they came.
+  std::map<std::vector<int64_t>, std::shared_ptr<const Optimum>> memo;
+  std::deque<std::vector<int64_t>> memo_order;
+
+  Problem Prepare(const std::vector<char>& sessions,
+                  const std::vector<int>& clusters,
+                  bool use_warm) const {
+    const int num_sessions = graph->num_sessions();
+    Problem p;
+    for (int c : clusters)
+      p.loop_edges.insert(p.loop_edges.end(), links[c].begin(), links[c].end());
+    std::sort(p.loop_edges.begin(), p.loop_edges.end());
+    p.warm_start = use_warm && warm != nullptr && options->warm_start;
+    p.first.assign(num_sessions, -1);
+    p.last.assign(num_sessions, -1);
+    auto extend = [&](int v) {
+      const int s = graph->vertex(v).session;
+      const int position = PositionInSession(v);
+      p.first[s] = p.first[s] < 0 ? position : std::min(p.first[s], position);
+      p.last[s] = std::max(p.last[s], position);
+    };
+    for (int e : p.loop_edges) {
+      extend(graph->edge(e).from);
+      extend(graph->edge(e).to);
+    }
+    for (int s = 0; s < num_sessions; ++s) {
+      if (!sessions[s] || p.first[s] < 0) {
+        p.first[s] = p.last[s] = -1;
+      } else if (!options->local_problems) {
+        p.first[s] = 0;
+        p.last[s] = static_cast<int>(graph->session(s).vertices.size()) - 1;
+      }
+    }
+    p.key.push_back(p.warm_start ? warm_version : -1);
+    p.key.insert(p.key.end(), p.loop_edges.begin(), p.loop_edges.end());
+    p.key.push_back(-1);
+    for (int s = 0; s < num_sessions; ++s) {
+      if (p.first[s] < 0) continue;
+      p.key.insert(p.key.end(), {s, p.first[s], p.last[s]});
+    }
+    return p;
+  }
+
+  // Runs the optimization of `p` with `solver` (whose kept symbolic analysis, if its pattern
+  // matches, changes nothing in the result). Reads shared state only: safe to run concurrently.
+  Optimum Compute(const Problem& p, Optimizer<Pose>* solver) const {
+    const int num_sessions = graph->num_sessions();
+    // Start: warm estimate or per-session dead reckoning, then frame groups aligned.
+    std::vector<Pose> x = p.warm_start ? *warm : *dead_reckoning;
+    x.resize(graph->num_vertices());
+    std::vector<int> group_of_session(num_sessions);
+    for (int s = 0; s < num_sessions; ++s) group_of_session[s] = p.warm_start ? warm_group[s] : s;
+    AlignGroups(p.loop_edges, group_of_session, &x);
+
+    // The subproblem: one sub-session per span, then the loops.
+    Optimum optimum;
+    PoseGraph<Pose> sub;
+    std::vector<int> sub_vertex(graph->num_vertices(), -1);
+    for (int s = 0; s < num_sessions; ++s) {
+      if (p.first[s] < 0) continue;
+      int sub_session = -1;
+      IRRR_CHECK(sub.AddSession(s, &sub_session).ok());
+      const std::vector<int>& vertices = graph->session(s).vertices;
+      for (int k = p.first[s]; k <= p.last[s]; ++k) {
+        const int v = vertices[k];
+        const Edge<Pose>* odometry =
+            k > p.first[s] ? &graph->edge(odometry_of_session[s][k - 1]) : nullptr;
+        if (odometry != nullptr) optimum.graph_edge_of_sub.push_back(odometry_of_session[s][k - 1]);
+        int index = -1;
+        IRRR_CHECK(sub.AddPose(sub_session,
+                               v,
+                               graph->vertex(v).stamp,
+                               x[v],
+                               odometry ? &odometry->measurement : nullptr,
+                               odometry ? &odometry->information : nullptr,
+                               &index)
+                       .ok());
+        sub_vertex[v] = index;
+        optimum.sub_x.push_back(x[v]);
+      }
+    }
+    for (int e : p.loop_edges) {
+      const Edge<Pose>& edge = graph->edge(e);
+      IRRR_CHECK(sub_vertex[edge.from] >= 0 && sub_vertex[edge.to] >= 0);
+      IRRR_CHECK(sub.AddLoop(sub_vertex[edge.from],
+                             sub_vertex[edge.to],
+                             edge.measurement,
+                             edge.information,
+                             nullptr)
+                     .ok());
+      optimum.graph_edge_of_sub.push_back(e);
+    }
+    optimum.summary = solver->Solve(sub, std::vector<char>(sub.num_edges(), 1), &optimum.sub_x);
+    return optimum;
+  }
+
+  // The optimizer of the serial path: one kept across solves (its symbolic analysis serves every
+  // next solve of the same sparsity pattern), or a fresh one per solve without reuse_analysis.
+  Optimizer<Pose>* SerialOptimizer() {
+    if (!optimizer || !options->reuse_analysis) {
+      optimizer = std::make_unique<Optimizer<Pose>>(options->optimizer);
+    }
+    return optimizer.get();
+  }
+
+  std::shared_ptr<const Optimum> Lookup(const std::vector<int64_t>& key) const {
+    if (!options->reuse_solves) return nullptr;
+    const auto it = memo.find(key);
+    return it == memo.end() ? nullptr : it->second;
+  }
+
+  void Remember(const std::vector<int64_t>& key, std::shared_ptr<const Optimum> optimum) {
+    if (!options->reuse_solves || memo.count(key) != 0) return;
+    // First in, first out: a solve is asked again soon after it ran (the line-8 optimization
+    // after Algorithm 1, the final one after a passing joint test) or after its prefetch.
+    constexpr size_t kCapacity = 32;
+    if (memo_order.size() >= kCapacity) {
+      memo.erase(memo_order.front());
+      memo_order.pop_front();
+    }
+    memo.emplace(key, std::move(optimum));
+    memo_order.push_back(key);
+  }
+
+  // Runs the problems not solved yet concurrently (when a parallel-for with two or more workers
+  // is set and solves are reused), so that the serial algorithm finds them done. The results are
+  // those the serial algorithm would compute, so decisions do not depend on it.
+  void Prefetch(const std::vector<Problem>& problems) {
+    if (!parallel_for || workers < 2 || !options->reuse_solves) return;
+    std::vector<const Problem*> missing;
+    for (const Problem& p : problems) {
+      if (Lookup(p.key) != nullptr) continue;
+      const bool listed = std::any_of(
+          missing.begin(), missing.end(), [&p](const Problem* q) { return q->key == p.key; });
+      if (!listed) missing.push_back(&p);
+    }
+    if (missing.size() < 2) return;  // nothing to run beside it: the serial path does it
+    std::vector<std::shared_ptr<const Optimum>> results(missing.size());
+    parallel_for(static_cast<int>(missing.size()), [&](int i) {
+      Optimizer<Pose> local(options->optimizer);
+      results[i] = std::make_shared<const Optimum>(Compute(*missing[i], &local));
+    });
+    for (size_t i = 0; i < missing.size(); ++i) Remember(missing[i]->key, std::move(results[i]));
+    solves += static_cast<int>(missing.size());
+  }
+
   // Optimizes the odometry of `sessions` plus the links of `clusters` (the paper's PoseGraphIC,
   // PoseGraphPR or PoseGraphJC). Returns a summary whose edge_chi2 is indexed like the graph and
   // whose chi2, residual_dimension and free_parameters are those of the whole problem, so the
@@ -169,89 +344,34 @@ struct Consensus {
   // their most agreed-on link. With `estimate`, the complete optimum of `sessions` is returned
   // (the unlooped stretches chained along their odometry), each component in the frame of its
   // earliest session's first pose; other vertices are copied from `base`.
+  //
+  // Reuse (options->reuse_solves): an optimization asked again with the same problem (same loops,
+  // spans and start) is not run again.
   Solution Solve(const std::vector<char>& sessions,
                  const std::vector<int>& clusters,
                  bool use_warm,
                  const std::vector<Pose>* base = nullptr) {
-    ++solves;
+    const Problem p = Prepare(sessions, clusters, use_warm);
+    std::shared_ptr<const Optimum> optimum = Lookup(p.key);
+    if (optimum == nullptr) {
+      optimum = std::make_shared<const Optimum>(Compute(p, SerialOptimizer()));
+      ++solves;
+      Remember(p.key, optimum);
+    }
+    return Finish(sessions, p, *optimum, base);
+  }
+
+  Solution Finish(const std::vector<char>& sessions,
+                  const Problem& p,
+                  const Optimum& optimum,
+                  const std::vector<Pose>* base) const {
     const int num_sessions = graph->num_sessions();
-    std::vector<int> loop_edges;
-    for (int c : clusters) loop_edges.insert(loop_edges.end(), links[c].begin(), links[c].end());
-    const bool warm_start = use_warm && warm != nullptr && options->warm_start;
-
-    // Span of each session: first and last position in the problem (-1: none).
-    std::vector<int> first(num_sessions, -1);
-    std::vector<int> last(num_sessions, -1);
-    auto extend = [&](int v) {
-      const int s = graph->vertex(v).session;
-      const int position = PositionInSession(v);
-      first[s] = first[s] < 0 ? position : std::min(first[s], position);
-      last[s] = std::max(last[s], position);
-    };
-    for (int e : loop_edges) {
-      extend(graph->edge(e).from);
-      extend(graph->edge(e).to);
-    }
-    if (!options->local_problems) {
-      for (int s = 0; s < num_sessions; ++s) {
-        if (!sessions[s] || first[s] < 0) continue;
-        first[s] = 0;
-        last[s] = static_cast<int>(graph->session(s).vertices.size()) - 1;
-      }
-    }
-
-    // Start: warm estimate or per-session dead reckoning, then frame groups aligned.
-    std::vector<Pose> x = warm_start ? *warm : *dead_reckoning;
-    x.resize(graph->num_vertices());
-    std::vector<int> group_of_session(num_sessions);
-    for (int s = 0; s < num_sessions; ++s) group_of_session[s] = warm_start ? warm_group[s] : s;
-    AlignGroups(loop_edges, group_of_session, &x);
-
-    // The subproblem: one sub-session per span, then the loops.
-    PoseGraph<Pose> sub;
-    std::vector<int> sub_vertex(graph->num_vertices(), -1);
-    std::vector<int> graph_edge_of_sub;
-    std::vector<Pose> sub_x;
-    for (int s = 0; s < num_sessions; ++s) {
-      if (!sessions[s] || first[s] < 0) continue;
-      int sub_session = -1;
-      IRRR_CHECK(sub.AddSession(s, &sub_session).ok());
-      const std::vector<int>& vertices = graph->session(s).vertices;
-      for (int k = first[s]; k <= last[s]; ++k) {
-        const int v = vertices[k];
-        const Edge<Pose>* odometry =
-            k > first[s] ? &graph->edge(odometry_of_session[s][k - 1]) : nullptr;
-        if (odometry != nullptr) graph_edge_of_sub.push_back(odometry_of_session[s][k - 1]);
-        IRRR_CHECK(sub.AddPose(sub_session,
-                               v,
-                               graph->vertex(v).stamp,
-                               x[v],
-                               odometry ? &odometry->measurement : nullptr,
-                               odometry ? &odometry->information : nullptr,
-                               &sub_vertex[v])
-                       .ok());
-        sub_x.push_back(x[v]);
-      }
-    }
-    for (int e : loop_edges) {
-      const Edge<Pose>& edge = graph->edge(e);
-      IRRR_CHECK(sub_vertex[edge.from] >= 0 && sub_vertex[edge.to] >= 0);
-      IRRR_CHECK(sub.AddLoop(sub_vertex[edge.from],
-                             sub_vertex[edge.to],
-                             edge.measurement,
-                             edge.information,
-                             nullptr)
-                     .ok());
-      graph_edge_of_sub.push_back(e);
-    }
-
     Solution solution;
-    Optimizer<Pose> optimizer(options->optimizer);
     OptimizerSummary& summary = solution.summary;
-    summary = optimizer.Solve(sub, std::vector<char>(sub.num_edges(), 1), &sub_x);
+    summary = optimum.summary;
     std::vector<double> edge_chi2(graph->num_edges(), 0.0);
-    for (int k = 0; k < sub.num_edges(); ++k)
-      edge_chi2[graph_edge_of_sub[k]] = summary.edge_chi2[k];
+    for (size_t k = 0; k < optimum.graph_edge_of_sub.size(); ++k)
+      edge_chi2[optimum.graph_edge_of_sub[k]] = optimum.summary.edge_chi2[k];
     summary.edge_chi2 = std::move(edge_chi2);
 
     // The whole problem's dimensions: every odometry edge of `sessions` and the loops; every
@@ -259,7 +379,7 @@ struct Consensus {
     int odometry_edges = 0;
     int poses = 0;
     std::vector<char> active_loops(graph->num_edges(), 0);
-    for (int e : loop_edges) active_loops[e] = 1;
+    for (int e : p.loop_edges) active_loops[e] = 1;
     const std::vector<int> component = SessionComponents(*graph, active_loops);
     std::vector<char> component_seen(num_sessions, 0);
     int components = 0;
@@ -272,7 +392,7 @@ struct Consensus {
         ++components;
       }
     }
-    summary.num_active_edges = odometry_edges + static_cast<int>(loop_edges.size());
+    summary.num_active_edges = odometry_edges + static_cast<int>(p.loop_edges.size());
     summary.residual_dimension = Pose::kDim * summary.num_active_edges;
     summary.free_parameters = Pose::kDim * (poses - components);
     summary.num_components = components;
@@ -280,25 +400,26 @@ struct Consensus {
     if (base != nullptr) {
       solution.estimate = *base;
       solution.estimate.resize(graph->num_vertices());
+      size_t sub_index = 0;  // spans lie in the subproblem session by session
       for (int s = 0; s < num_sessions; ++s) {
         if (!sessions[s]) continue;
         const std::vector<int>& vertices = graph->session(s).vertices;
         const std::vector<int>& odometry = odometry_of_session[s];
         const int n = static_cast<int>(vertices.size());
-        if (first[s] < 0) {
+        if (p.first[s] < 0) {
           // No loop: the session keeps its own frame, along its odometry.
           for (int k = 0; k < n; ++k)
             solution.estimate[vertices[k]] = (*dead_reckoning)[vertices[k]];
           continue;
         }
-        for (int k = first[s]; k <= last[s]; ++k) {
-          solution.estimate[vertices[k]] = sub_x[sub_vertex[vertices[k]]];
+        for (int k = p.first[s]; k <= p.last[s]; ++k) {
+          solution.estimate[vertices[k]] = optimum.sub_x[sub_index++];
         }
-        for (int k = first[s] - 1; k >= 0; --k) {
+        for (int k = p.first[s] - 1; k >= 0; --k) {
           solution.estimate[vertices[k]] =
               solution.estimate[vertices[k + 1]] * graph->edge(odometry[k]).measurement.Inverse();
         }
-        for (int k = last[s] + 1; k < n; ++k) {
+        for (int k = p.last[s] + 1; k < n; ++k) {
           solution.estimate[vertices[k]] =
               solution.estimate[vertices[k - 1]] * graph->edge(odometry[k - 1]).measurement;
         }
@@ -389,7 +510,17 @@ struct Consensus {
         checked_individually = true;
         const std::vector<int> members = links[c];
         std::vector<int> kept;
-        for (int e : members) {
+        const size_t batch = 2 * static_cast<size_t>(std::max(workers, 1));
+        for (size_t k = 0; k < members.size(); ++k) {
+          const int e = members[k];
+          if (k % batch == 0) {
+            std::vector<Problem> next;
+            for (size_t j = k; j < std::min(k + batch, members.size()); ++j) {
+              links[c] = {members[j]};
+              next.push_back(Prepare(SessionsOf({c}), {c}, false));
+            }
+            Prefetch(next);
+          }
           links[c] = {e};
           const Solution alone = Solve(SessionsOf({c}), {c}, false);
           const double chi2 = alone.summary.edge_chi2[e];
@@ -414,6 +545,15 @@ struct Consensus {
       suspects.resize(std::min<size_t>(suspects.size(), options->elimination_lookahead));
       int worst = -1;
       double best_rest = std::numeric_limits<double>::infinity();
+      std::vector<Problem> rests;
+      for (int e : suspects) {
+        links[c].clear();
+        for (int other : members) {
+          if (other != e) links[c].push_back(other);
+        }
+        rests.push_back(Prepare(SessionsOf({c}), {c}, false));
+      }
+      Prefetch(rests);
       for (int e : suspects) {
         links[c].clear();
         for (int other : members) {
@@ -582,6 +722,15 @@ struct Consensus {
         using Rank = std::tuple<size_t, bool, double>;
         Rank best;
         bool have_best = false;
+        std::vector<Problem> rests;
+        for (int k = 0; k < lookahead; ++k) {
+          std::vector<int> rest;
+          for (int c : tested) {
+            if (c != by_index[k].second) rest.push_back(c);
+          }
+          rests.push_back(Prepare(sessions, rest, false));
+        }
+        Prefetch(rests);
         for (int k = 0; k < lookahead; ++k) {
           const int left_out = by_index[k].second;
           std::vector<int> rest;
@@ -870,6 +1019,12 @@ void Irrr<Pose>::Flush() {
 }
 
 template <class Pose>
+void Irrr<Pose>::SetParallelFor(ParallelFor parallel_for, int workers) {
+  state_->consensus.parallel_for = std::move(parallel_for);
+  state_->consensus.workers = workers;
+}
+
+template <class Pose>
 bool Irrr<Pose>::HasPendingStep() const {
   return state_->next_closed < state_->closed.size();
 }
@@ -885,16 +1040,24 @@ StepResult Irrr<Pose>::RunStep() {
   result.cluster = cluster;
   consensus.solves = 0;
 
+  // The components (under the current good set) that the cluster touches.
+  const std::vector<int> component = Components();
+  consensus.warm = &st.estimate;
+  consensus.warm_group = component;
+  ++consensus.warm_version;
+  std::vector<char> sessions(st.graph.num_sessions(), 0);
+  for (int s = 0; s < st.graph.num_sessions(); ++s) {
+    sessions[s] = component[s] == component[consensus.session_a[cluster]] ||
+                  component[s] == component[consensus.session_b[cluster]];
+  }
+  // With workers to spare, Algorithm 1's first optimization and the joint test the step runs
+  // if the cluster passes it whole (the common case) go side by side.
+  std::vector<int> tested = consensus.GoodWithin(sessions);
+  tested.push_back(cluster);
+  consensus.Prefetch({consensus.Prepare(consensus.SessionsOf({cluster}), {cluster}, false),
+                      consensus.Prepare(sessions, tested, true)});
+
   if (consensus.IntraCluster(cluster, &result.changed_loops)) {
-    // The components (under the current good set) that the cluster touches.
-    const std::vector<int> component = Components();
-    consensus.warm = &st.estimate;
-    consensus.warm_group = component;
-    std::vector<char> sessions(st.graph.num_sessions(), 0);
-    for (int s = 0; s < st.graph.num_sessions(); ++s) {
-      sessions[s] = component[s] == component[consensus.session_a[cluster]] ||
-                    component[s] == component[consensus.session_b[cluster]];
-    }
     consensus.Algorithm3(sessions, /*incremental=*/true, &result.changed_loops);
     const auto solution =
         consensus.Solve(sessions, consensus.GoodWithin(sessions), true, &st.estimate);
@@ -1022,6 +1185,9 @@ Status Irrr<Pose>::RestoreStepState(IrrrStepState<Pose> state) {
     c.opponents[k] = std::move(cluster.opponents);
   }
   c.step = state.steps;
+  c.memo.clear();
+  c.memo_order.clear();
+  ++c.warm_version;
   st.decisions = std::move(state.decisions);
   st.estimate = std::move(state.estimate);
   st.consensus_of = std::move(state.cluster_of);
@@ -1043,10 +1209,14 @@ std::vector<int> Irrr<Pose>::Components() const {
 template <class Pose>
 std::vector<LoopDecision> RunBatchRrr(const PoseGraph<Pose>& graph,
                                       const IrrrOptions& options,
-                                      std::vector<Pose>* estimate) {
+                                      std::vector<Pose>* estimate,
+                                      const ParallelFor& parallel_for,
+                                      int workers) {
   IRRR_CHECK(options.Validate().ok());
   std::vector<LoopDecision> decisions(graph.num_edges());
   Consensus<Pose> consensus;
+  consensus.parallel_for = parallel_for;
+  consensus.workers = workers;
   consensus.graph = &graph;
   consensus.options = &options;
   consensus.decisions = &decisions;
@@ -1079,8 +1249,19 @@ std::vector<LoopDecision> RunBatchRrr(const PoseGraph<Pose>& graph,
   }
   clusterer.CloseAll();
 
-  // Clusters split off by Algorithm 1 are appended and judged in the same pass.
-  for (int c = 0; c < clusterer.num_clusters(); ++c) consensus.IntraCluster(c, nullptr);
+  // Clusters split off by Algorithm 1 are appended and judged in the same pass. Their first
+  // optimizations are independent: prefetched a batch at a time.
+  const int batch = 2 * std::max(workers, 1);
+  for (int c = 0; c < clusterer.num_clusters(); ++c) {
+    if (c % batch == 0) {
+      std::vector<typename Consensus<Pose>::Problem> next;
+      for (int k = c; k < std::min(c + batch, clusterer.num_clusters()); ++k) {
+        next.push_back(consensus.Prepare(consensus.SessionsOf({k}), {k}, false));
+      }
+      consensus.Prefetch(next);
+    }
+    consensus.IntraCluster(c, nullptr);
+  }
   const std::vector<char> all_sessions(graph.num_sessions(), 1);
   consensus.Algorithm3(all_sessions, /*incremental=*/false, nullptr);
   const auto solution =
@@ -1180,8 +1361,11 @@ template <class Pose>
 std::vector<LoopDecision> RunIncrementalIrrr(const PoseGraph<Pose>& graph,
                                              const IrrrOptions& options,
                                              std::vector<Pose>* estimate,
-                                             std::vector<StepResult>* steps) {
+                                             std::vector<StepResult>* steps,
+                                             const ParallelFor& parallel_for,
+                                             int workers) {
   Irrr<Pose> irrr(options);
+  irrr.SetParallelFor(parallel_for, workers);
   GraphReplay<Pose> replay(graph, &irrr);
   auto run_steps = [&]() {
     while (irrr.HasPendingStep()) {
@@ -1206,18 +1390,20 @@ template class GraphReplay<Pose3>;
 template std::vector<LoopDecision> RunIncrementalIrrr<Pose2>(const PoseGraph<Pose2>&,
                                                              const IrrrOptions&,
                                                              std::vector<Pose2>*,
-                                                             std::vector<StepResult>*);
+                                                             std::vector<StepResult>*,
+                                                             const ParallelFor&,
+                                                             int);
 template std::vector<LoopDecision> RunIncrementalIrrr<Pose3>(const PoseGraph<Pose3>&,
                                                              const IrrrOptions&,
                                                              std::vector<Pose3>*,
-                                                             std::vector<StepResult>*);
+                                                             std::vector<StepResult>*,
+                                                             const ParallelFor&,
+                                                             int);
 template std::vector<ArrivalEvent> ArrivalOrder<Pose2>(const PoseGraph<Pose2>&);
 template std::vector<ArrivalEvent> ArrivalOrder<Pose3>(const PoseGraph<Pose3>&);
-template std::vector<LoopDecision> RunBatchRrr<Pose2>(const PoseGraph<Pose2>&,
-                                                      const IrrrOptions&,
-                                                      std::vector<Pose2>*);
-template std::vector<LoopDecision> RunBatchRrr<Pose3>(const PoseGraph<Pose3>&,
-                                                      const IrrrOptions&,
-                                                      std::vector<Pose3>*);
+template std::vector<LoopDecision> RunBatchRrr<Pose2>(
+    const PoseGraph<Pose2>&, const IrrrOptions&, std::vector<Pose2>*, const ParallelFor&, int);
+template std::vector<LoopDecision> RunBatchRrr<Pose3>(
+    const PoseGraph<Pose3>&, const IrrrOptions&, std::vector<Pose3>*, const ParallelFor&, int);
 
 }  // namespace irrr

@@ -19,6 +19,7 @@
 // RunBatchRrr is the paper's batch Algorithm 3 (with its reject-set clearing) on a whole graph.
 
 #include <cstdint>
+#include <functional>
 #include <limits>
 #include <memory>
 #include <string>
@@ -76,6 +77,13 @@ struct IrrrOptions {
   // The joint tests of the incremental algorithm start from the previous step's estimate instead
   // of dead reckoning (off: dead reckoning, as the reference code).
   bool warm_start = false;
+  // Speed (none changes a decision; irrr-bench-speed measures what each buys). An optimization
+  // asked for again with the same loops, spans and start (the line-8 optimization after
+  // Algorithm 1, the final one after a passing joint test, prefetched ones) is not run again.
+  bool reuse_solves = true;
+  // One optimizer is kept across solves, so that its symbolic analysis (ordering, elimination
+  // tree, supernodes) serves every next solve of the same sparsity pattern (off: a fresh one each).
+  bool reuse_analysis = true;
   // A bound on a cluster's links (the cost of Algorithm 1 on it grows with them): a full cluster
   // takes no more, and the next link starts a new cluster. 0: unbounded (the paper).
   int max_cluster_size = 0;
@@ -86,6 +94,12 @@ struct IrrrOptions {
 
   Status Validate() const;
 };
+
+// Runs body(0), ..., body(n - 1), possibly concurrently, and returns when all have returned. Core
+// runs no threads itself: a caller that has a thread pool passes one (SetParallelFor), and iRRR
+// then runs independent optimizations on it. Decisions do not depend on it: every result is
+// committed in the serial order.
+using ParallelFor = std::function<void(int n, const std::function<void(int)>& body)>;
 
 enum class LoopState {
   kPending,              // not judged yet, or judged consistent on its own but not (yet) accepted
@@ -168,6 +182,10 @@ class Irrr {
   // Closes every open cluster (they are judged by the next steps).
   void Flush();
 
+  // Independent optimizations (the checks a step is about to run) go to `parallel_for`, which
+  // runs on `workers` threads (< 2, or an empty function: everything serial, the default).
+  void SetParallelFor(ParallelFor parallel_for, int workers);
+
   bool HasPendingStep() const;
   // Judges the oldest closed cluster not judged yet. Requires HasPendingStep().
   StepResult RunStep();
@@ -204,7 +222,9 @@ class Irrr {
 template <class Pose>
 std::vector<LoopDecision> RunBatchRrr(const PoseGraph<Pose>& graph,
                                       const IrrrOptions& options,
-                                      std::vector<Pose>* estimate);
+                                      std::vector<Pose>* estimate,
+                                      const ParallelFor& parallel_for = {},
+                                      int workers = 1);
 
 // One input event of a graph replayed in arrival order (algorithm-notes, "Files as input").
 struct ArrivalEvent {
@@ -255,7 +275,9 @@ template <class Pose>
 std::vector<LoopDecision> RunIncrementalIrrr(const PoseGraph<Pose>& graph,
                                              const IrrrOptions& options,
                                              std::vector<Pose>* estimate,
-                                             std::vector<StepResult>* steps);
+                                             std::vector<StepResult>* steps,
+                                             const ParallelFor& parallel_for = {},
+                                             int workers = 1);
 
 // chi2 quantile: the value below which a chi-square variable with `dof` degrees of freedom falls
 // with probability `alpha` (Boost.Math).

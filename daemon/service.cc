@@ -12,6 +12,7 @@
 #include <fmt/core.h>
 #include <spdlog/spdlog.h>
 
+#include "clients/thread_pool.h"
 #include "daemon/sequencer.h"
 #include "daemon/snapshot.h"
 #include "daemon/stamp_merger.h"
@@ -356,9 +357,12 @@ struct Service::State {
         sequencer(SequencerLimits{d.limits.max_held,
                                   std::chrono::milliseconds(d.resync.interval_ms),
                                   std::chrono::milliseconds(d.resync.give_up_ms)}),
+        pool(d.threads > 0 ? d.threads : ThreadPool::DefaultThreads()),
         se2(o),
         se3(o),
         start_utime(NowUtime()) {
+    se2.irrr.SetParallelFor(pool.AsParallelFor(), pool.size());
+    se3.irrr.SetParallelFor(pool.AsParallelFor(), pool.size());
     if (d.merge.window_ms > 0) {
       merger = std::make_unique<StampMerger<Input>>(std::chrono::milliseconds(d.merge.window_ms),
                                                     d.merge.senders);
@@ -403,7 +407,8 @@ struct Service::State {
   std::mutex publish_mutex;
   int64_t next_seq = 0;
 
-  // Worker only.
+  // Worker only (the pool runs the engines' independent checks for it).
+  ThreadPool pool;
   Engine<Pose2> se2;
   Engine<Pose3> se3;
   struct SessionRef {

@@ -100,6 +100,8 @@ TEST_CASE("Every key of the irrr section is read into its field", "[config]") {
       {"retry_within_step", false},
       {"local_problems", false},
       {"warm_start", true},
+      {"reuse_solves", false},
+      {"reuse_analysis", false},
       {"max_cluster_size", 40},
       {"optimizer",
        {{"algorithm", "levenberg_marquardt"},
@@ -127,6 +129,8 @@ TEST_CASE("Every key of the irrr section is read into its field", "[config]") {
   CHECK_FALSE(options.revive_opponents);
   CHECK_FALSE(options.retry_within_step);
   CHECK_FALSE(options.local_problems);
+  CHECK_FALSE(options.reuse_solves);
+  CHECK_FALSE(options.reuse_analysis);
   CHECK(options.warm_start);
   CHECK(options.optimizer.algorithm == OptimizerAlgorithm::kLevenbergMarquardt);
   CHECK(options.optimizer.max_iterations == 7);

@@ -84,6 +84,7 @@ TEST_CASE("Daemon configuration errors name the key", "[daemon][config]") {
              Contains("daemon.channels.keyframes: unknown key"));
   CHECK_THAT(error(R"({"daemon": {"limits": {"queue_limit": 0}}})"), Contains("daemon.limits"));
   CHECK_THAT(error(R"({"daemon": {"log_level": "loud"}})"), Contains("daemon.log_level"));
+  CHECK_THAT(error(R"({"daemon": {"threads": -1}})"), Contains("daemon.threads"));
   CHECK_THAT(error(R"({"daemon": {"channels": {"loop": "IRRR_KEYFRAME"}}})"),
              Contains("used by another channel"));
   CHECK_THAT(error(R"({"irrr": {"alpha": 2}})"), Contains("irrr"));
