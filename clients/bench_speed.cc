@@ -1,0 +1,465 @@
+// irrr-bench-speed: how fast incremental iRRR is on the public datasets with synthetic wrong
+// loops, and what each speed-up buys (issue "Make iRRR fast").
+//
+// For every case (a dataset plus MakeOutliers' wrong loops) and every variant (all speed-ups on,
+// then each switched off in turn), the whole graph is replayed in arrival order with every step
+// timed, in a child process of its own: its peak memory is its own, and a run over the time budget
+// is stopped. Printed per run: total time, step latency percentiles, optimizations per step, peak
+// memory; and whether its decisions equal those of the first variant, loop for loop.
+
+#include <fcntl.h>
+#include <signal.h>
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <sysexits.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <fmt/core.h>
+#include <CLI/CLI.hpp>
+
+#include "clients/graph_files.h"
+#include "clients/thread_pool.h"
+#include "core/irrr.h"
+#include "core/optimizer.h"
+#include "core/outliers.h"
+
+namespace irrr {
+namespace {
+
+struct Dataset {
+  std::string name;
+  std::string path;  // relative to the shared folder
+};
+
+const std::vector<Dataset>& Datasets() {
+  static const std::vector<Dataset> datasets = {
+      {"manhattan", "datasets/manhattan/vertigo/Olson/manhattanOlson3500.g2o"},
+      {"city10000", "datasets/city10000/vertigo/city10000.g2o"},
+      {"sphere2500", "datasets/sphere2500/vertigo/sphere2500.g2o"},
+      {"intel", "datasets/intel/vertigo/intel.g2o"},
+  };
+  return datasets;
+}
+
+struct Variant {
+  std::string name;
+  IrrrOptions options;
+  int threads = 1;
+};
+
+// All speed-ups on, then each off in turn (and the warm start, off by default, on).
+std::vector<Variant> Variants(int threads) {
+  std::vector<Variant> variants;
+  variants.push_back({"all on", IrrrOptions(), threads});
+  Variant v = variants.front();
+  v.name = "reuse_solves off";
+  v.options.reuse_solves = false;
+  variants.push_back(v);
+  v = variants.front();
+  v.name = "reuse_analysis off";
+  v.options.reuse_analysis = false;
+  variants.push_back(v);
+  v = variants.front();
+  v.name = "local_problems off";
+  v.options.local_problems = false;
+  variants.push_back(v);
+  v = variants.front();
+  v.name = "1 thread";
+  v.threads = 1;
+  variants.push_back(v);
+  v = variants.front();
+  v.name = "warm_start on";
+  v.options.warm_start = true;
+  variants.push_back(v);
+  return variants;
+}
+
+double SecondsSince(std::chrono::steady_clock::time_point start) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+}
+
+// Nearest-rank percentile of sorted values.
+double Percentile(const std::vector<double>& sorted, double p) {
+  if (sorted.empty()) return 0.0;
+  const auto rank = static_cast<size_t>(std::ceil(p * static_cast<double>(sorted.size())));
+  return sorted[std::min(sorted.size() - 1, rank == 0 ? 0 : rank - 1)];
+}
+
+// A field of /proc/self/status in kB (VmRSS, VmHWM), or -1.
+long StatusKb(const std::string& field) {
+  std::ifstream in("/proc/self/status");
+  std::string line;
+  while (std::getline(in, line)) {
+    if (line.rfind(field + ":", 0) == 0) return std::stol(line.substr(field.size() + 1));
+  }
+  return -1;
+}
+
+struct RunResult {
+  bool finished = false;
+  double seconds = 0.0;
+  int steps = 0;
+  long solves = 0;
+  int max_solves = 0;  // in one step
+  std::vector<double> step_ms;
+  long start_kb = 0;  // RSS when the run started (the graph, loaded by the parent, included)
+  long peak_kb = 0;   // VmHWM at the end
+  std::vector<int> states;
+};
+
+template <class Pose>
+RunResult RunIncremental(const PoseGraph<Pose>& graph, const Variant& variant) {
+  RunResult result;
+  result.start_kb = StatusKb("VmRSS");
+  ThreadPool pool(variant.threads);
+  const auto start = std::chrono::steady_clock::now();
+  Irrr<Pose> irrr(variant.options);
+  irrr.SetParallelFor(pool.AsParallelFor(), pool.size());
+  GraphReplay<Pose> replay(graph, &irrr);
+  auto run_steps = [&]() {
+    while (irrr.HasPendingStep()) {
+      const auto step_start = std::chrono::steady_clock::now();
+      const StepResult step = irrr.RunStep();
+      result.step_ms.push_back(1e3 * SecondsSince(step_start));
+      result.solves += step.solves;
+      result.max_solves = std::max(result.max_solves, step.solves);
+    }
+  };
+  for (const ArrivalEvent& event : ArrivalOrder(graph)) {
+    replay.Apply(event);
+    run_steps();
+  }
+  irrr.Flush();
+  run_steps();
+  result.seconds = SecondsSince(start);
+  result.steps = irrr.num_steps();
+  result.peak_kb = StatusKb("VmHWM");
+  for (const LoopDecision& d : replay.Decisions()) result.states.push_back(static_cast<int>(d.state));
+  result.finished = true;
+  return result;
+}
+
+// Runs `run` in a child process; a child still running after `budget_s` is killed (finished
+// false, seconds = the budget).
+template <class Run>
+RunResult InChild(const Run& run, double budget_s) {
+  int fds[2];
+  if (pipe(fds) != 0) return RunResult();
+  const pid_t pid = fork();
+  if (pid == 0) {
+    close(fds[0]);
+    const RunResult r = run();
+    std::ostringstream out;
+    out.precision(17);
+    out << r.seconds << ' ' << r.steps << ' ' << r.solves << ' ' << r.max_solves << ' '
+        << r.start_kb << ' ' << r.peak_kb << ' ' << r.step_ms.size();
+    for (double ms : r.step_ms) out << ' ' << ms;
+    out << ' ' << r.states.size();
+    for (int s : r.states) out << ' ' << s;
+    const std::string text = out.str();
+    size_t written = 0;
+    while (written < text.size()) {
+      const ssize_t n = write(fds[1], text.data() + written, text.size() - written);
+      if (n <= 0) break;
+      written += static_cast<size_t>(n);
+    }
+    close(fds[1]);
+    _exit(0);
+  }
+  close(fds[1]);
+  RunResult result;
+  if (pid < 0) {
+    close(fds[0]);
+    return result;
+  }
+  // Read while waiting, so that a large result cannot block the child on a full pipe.
+  std::string text;
+  const auto start = std::chrono::steady_clock::now();
+  bool killed = false;
+  fcntl(fds[0], F_SETFL, O_NONBLOCK);
+  while (true) {
+    char buffer[65536];
+    const ssize_t n = read(fds[0], buffer, sizeof buffer);
+    if (n > 0) {
+      text.append(buffer, static_cast<size_t>(n));
+      continue;
+    }
+    if (n == 0) break;  // the child closed its end
+    if (!killed && SecondsSince(start) > budget_s) {
+      kill(pid, SIGKILL);
+      killed = true;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  close(fds[0]);
+  int status = 0;
+  waitpid(pid, &status, 0);
+  if (killed || !WIFEXITED(status) || WEXITSTATUS(status) != 0 || text.empty()) {
+    result.seconds = budget_s;
+    return result;
+  }
+  std::istringstream in(text);
+  size_t count = 0;
+  in >> result.seconds >> result.steps >> result.solves >> result.max_solves >> result.start_kb >>
+      result.peak_kb >> count;
+  result.step_ms.resize(count);
+  for (double& ms : result.step_ms) in >> ms;
+  in >> count;
+  result.states.resize(count);
+  for (int& s : result.states) in >> s;
+  result.finished = static_cast<bool>(in);
+  return result;
+}
+
+// Bytes the graph itself takes: vertices, edges (with their information) and one estimate.
+template <class Pose>
+double GraphMegabytes(const PoseGraph<Pose>& graph) {
+  const double bytes =
+      static_cast<double>(graph.num_vertices()) * static_cast<double>(sizeof(Vertex) + sizeof(Pose)) +
+      static_cast<double>(graph.num_edges()) * static_cast<double>(sizeof(Edge<Pose>));
+  return bytes / (1024.0 * 1024.0);
+}
+
+struct Settings {
+  std::string shared = "../shared";
+  std::vector<std::string> datasets = {"manhattan", "city10000", "sphere2500"};
+  std::vector<int> counts = {1000};
+  OutlierOptions outliers;
+  std::vector<std::string> variants;  // empty: all
+  int threads = 2;
+  double budget_s = 600.0;
+};
+
+template <class Pose>
+int RunCase(const Dataset& dataset, int count, const Settings& settings, std::string* table) {
+  const std::string path = settings.shared + "/" + dataset.path;
+  FileFormat format;
+  int dimension = 0;
+  GraphFile<Pose> file;
+  PoseGraph<Pose> graph;
+  std::vector<int> unused;
+  if (Status s = InspectGraphFile(path, &format, &dimension); !s.ok()) {
+    fmt::print(stderr, "irrr-bench-speed: {}\n", s.message());
+    return EX_NOINPUT;
+  }
+  if (Status s = LoadPoseGraph(path, format, ReadOptions(), &file, &graph, &unused); !s.ok()) {
+    fmt::print(stderr, "irrr-bench-speed: {}\n", s.message());
+    return EX_DATAERR;
+  }
+  OutlierOptions outliers = settings.outliers;
+  outliers.count = count;
+  std::vector<OutlierLink<Pose>> links;
+  if (Status s = MakeOutliers(graph, outliers, &links); !s.ok()) {
+    fmt::print(stderr, "irrr-bench-speed: {}: {}\n", dataset.name, s.message());
+    return EX_DATAERR;
+  }
+  for (const OutlierLink<Pose>& link : links) {
+    IRRR_CHECK(graph.AddLoop(link.from, link.to, link.measurement, link.information, nullptr).ok());
+  }
+  const std::string case_name =
+      fmt::format("{} + {} {}", dataset.name, links.size(), OutlierModeName(outliers.mode));
+
+  // The reference point for memory and time: one Gauss-Newton solve of the whole graph (every
+  // edge, from the file's initial guess) in a child of its own.
+  const RunResult batch = InChild(
+      [&graph]() {
+        RunResult r;
+        r.start_kb = StatusKb("VmRSS");
+        std::vector<Pose> x = graph.initial_estimate();
+        Optimizer<Pose> optimizer;
+        const auto start = std::chrono::steady_clock::now();
+        optimizer.Solve(graph, std::vector<char>(graph.num_edges(), 1), &x);
+        r.seconds = SecondsSince(start);
+        r.peak_kb = StatusKb("VmHWM");
+        return r;
+      },
+      settings.budget_s);
+  const double graph_mb = GraphMegabytes(graph);
+  const double batch_mb = static_cast<double>(batch.peak_kb - batch.start_kb) / 1024.0;
+  fmt::print(stderr,
+             "{}: {} poses, {} edges; graph {:.1f} MB; one batch solve (all edges) {:.2f} s, "
+             "+{:.1f} MB\n",
+             case_name,
+             graph.num_vertices(),
+             graph.num_edges(),
+             graph_mb,
+             batch.seconds,
+             batch_mb);
+
+  std::vector<int> reference_states;
+  std::string reference_name;
+  for (const Variant& variant : Variants(settings.threads)) {
+    if (!settings.variants.empty() &&
+        std::find(settings.variants.begin(), settings.variants.end(), variant.name) ==
+            settings.variants.end()) {
+      continue;
+    }
+    fmt::print(stderr, "  {} ...\n", variant.name);
+    RunResult r =
+        InChild([&graph, &variant]() { return RunIncremental(graph, variant); }, settings.budget_s);
+    std::string same = "-";
+    if (r.finished && reference_states.empty() && reference_name.empty()) {
+      reference_states = r.states;
+      reference_name = variant.name;
+      same = "(reference)";
+    } else if (r.finished && !reference_states.empty()) {
+      int differ = 0;
+      for (size_t e = 0; e < r.states.size() && e < reference_states.size(); ++e) {
+        differ += r.states[e] != reference_states[e] ? 1 : 0;
+      }
+      same = differ == 0 && r.states.size() == reference_states.size()
+                 ? "yes"
+                 : fmt::format("NO ({} loops differ)", differ);
+    }
+    std::vector<double> sorted = r.step_ms;
+    std::sort(sorted.begin(), sorted.end());
+    const double peak_mb = static_cast<double>(r.peak_kb) / 1024.0;
+    const double growth_mb = static_cast<double>(r.peak_kb - r.start_kb) / 1024.0;
+    const std::string row =
+        r.finished
+            ? fmt::format(
+                  "| {} | {} | {} | {:.2f} | {} | {:.1f} | {:.1f} | {:.1f} | {:.1f} | {:.1f} | "
+                  "{} | {:.1f} | {:.1f} | {:.1f} | {:.1f} | {:.2f} | {} |\n",
+                  case_name,
+                  variant.name,
+                  variant.threads,
+                  r.seconds,
+                  r.steps,
+                  Percentile(sorted, 0.50),
+                  Percentile(sorted, 0.90),
+                  Percentile(sorted, 0.99),
+                  sorted.empty() ? 0.0 : sorted.back(),
+                  r.steps > 0 ? static_cast<double>(r.solves) / r.steps : 0.0,
+                  r.max_solves,
+                  peak_mb,
+                  growth_mb,
+                  graph_mb,
+                  batch_mb,
+                  batch.seconds,
+                  same)
+            : fmt::format(
+                  "| {} | {} | {} | > {:.0f} (stopped) | - | - | - | - | - | - | - | - | - | "
+                  "{:.1f} | {:.1f} | {:.2f} | - |\n",
+                  case_name,
+                  variant.name,
+                  variant.threads,
+                  settings.budget_s,
+                  graph_mb,
+                  batch_mb,
+                  batch.seconds);
+    fmt::print("{}", row);
+    std::fflush(stdout);
+    *table += row;
+  }
+  return EX_OK;
+}
+
+std::vector<std::string> SplitCommas(const std::string& text) {
+  std::vector<std::string> parts;
+  std::stringstream in(text);
+  std::string part;
+  while (std::getline(in, part, ',')) {
+    if (!part.empty()) parts.push_back(part);
+  }
+  return parts;
+}
+
+int Main(int argc, char** argv) {
+  CLI::App app("irrr-bench-speed: incremental iRRR's speed, and what each speed-up buys");
+  Settings settings;
+  std::string datasets = "manhattan,city10000,sphere2500";
+  std::string counts = "1000";
+  std::string variants;
+  std::string mode = "random";
+  std::string output;
+  app.add_option("--shared", settings.shared, "the shared/ folder holding datasets/")
+      ->capture_default_str();
+  app.add_option("--datasets", datasets, "comma-separated: manhattan, city10000, sphere2500, intel")
+      ->capture_default_str();
+  app.add_option("--outliers", counts, "comma-separated wrong-loop counts")->capture_default_str();
+  app.add_option("--mode", mode, "outlier mode")
+      ->check(CLI::IsMember({"random", "local", "random-grouped", "local-grouped"}))
+      ->capture_default_str();
+  app.add_option("--group-size", settings.outliers.group_size, "links per group (grouped modes)")
+      ->capture_default_str();
+  app.add_option("--seed", settings.outliers.seed, "seed of the wrong loops")->capture_default_str();
+  app.add_option("--variants",
+                 variants,
+                 "comma-separated subset of: all on, reuse_solves off, reuse_analysis off, "
+                 "local_problems off, 1 thread, warm_start on (default: all)");
+  app.add_option("--threads", settings.threads, "threads of the parallel variants")
+      ->check(CLI::PositiveNumber)
+      ->capture_default_str();
+  app.add_option("--budget", settings.budget_s, "seconds before a run is stopped")
+      ->check(CLI::PositiveNumber)
+      ->capture_default_str();
+  app.add_option("--output", output, "also write the table (Markdown) here");
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    const int code = app.exit(e);
+    return code == 0 ? EX_OK : EX_USAGE;
+  }
+  settings.datasets = SplitCommas(datasets);
+  settings.variants = SplitCommas(variants);
+  settings.counts.clear();
+  for (const std::string& c : SplitCommas(counts)) settings.counts.push_back(std::stoi(c));
+  for (OutlierMode m : {OutlierMode::kRandom,
+                        OutlierMode::kLocal,
+                        OutlierMode::kRandomGrouped,
+                        OutlierMode::kLocalGrouped}) {
+    if (mode == OutlierModeName(m)) settings.outliers.mode = m;
+  }
+
+  std::string table =
+      "| case | variant | threads | total s | steps | step p50 ms | p90 ms | p99 ms | max ms | "
+      "solves/step | max solves | peak MB | growth MB | graph MB | batch solve MB | batch solve "
+      "s | same decisions |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
+      "\n";
+  fmt::print("{}", table);
+  for (const std::string& name : settings.datasets) {
+    const auto it = std::find_if(Datasets().begin(), Datasets().end(), [&](const Dataset& d) {
+      return d.name == name;
+    });
+    if (it == Datasets().end()) {
+      fmt::print(stderr, "irrr-bench-speed: unknown dataset {}\n", name);
+      return EX_USAGE;
+    }
+    FileFormat format;
+    int dimension = 0;
+    if (Status s = InspectGraphFile(settings.shared + "/" + it->path, &format, &dimension);
+        !s.ok()) {
+      fmt::print(stderr, "irrr-bench-speed: {}\n", s.message());
+      return EX_NOINPUT;
+    }
+    for (int count : settings.counts) {
+      const int code = dimension == 2 ? RunCase<Pose2>(*it, count, settings, &table)
+                                      : RunCase<Pose3>(*it, count, settings, &table);
+      if (code != EX_OK) return code;
+    }
+  }
+  if (!output.empty()) {
+    std::ofstream out(output);
+    out << table;
+    if (!out) {
+      fmt::print(stderr, "irrr-bench-speed: {}: cannot write\n", output);
+      return EX_CANTCREAT;
+    }
+  }
+  return EX_OK;
+}
+
+}  // namespace
+}  // namespace irrr
+
+int main(int argc, char** argv) { return irrr::Main(argc, argv); }
