@@ -3,13 +3,60 @@
 #include <cholmod.h>
 
 #include <algorithm>
+#include <mutex>
+
+// libgomp's, declared here so that no compiler's omp.h is needed (CHOLMOD links libgomp).
+extern "C" void omp_set_max_active_levels(int max_levels);
 
 namespace irrr {
+namespace {
+
+// CHOLMOD's supernodal kernels call BLAS and LAPACK, and Debian's serial OpenBLAS keeps working
+// buffers of its own that two threads calling it at once share: concurrent supernodal
+// factorizations then return other numbers (seen as 3D decisions that differed between one and
+// two threads). Supernodal numerics therefore take this lock; simplicial ones call no BLAS and run
+// side by side. Core starts no threads; the lock only makes concurrent callers safe.
+std::mutex& BlasMutex() {
+  static std::mutex mutex;
+  return mutex;
+}
+
+// CHOLMOD's supernodal factorization opens OpenMP parallel regions of a fixed thread count (its
+// compile-time CHOLMOD_OMP_NUM_THREADS, which OMP_NUM_THREADS does not override). On pose graphs
+// their start and wake-ups cost more than they save: a 3D iRRR run spent 40% of its time in them
+// and took 2.3 times as long. Parallelism belongs to the caller (independent solves on its pool),
+// so each calling thread runs CHOLMOD's regions with one thread: a thread's max-active-levels of
+// 0 makes every region it opens inactive. The setting is per thread in libgomp.
+void SerialOpenMpRegions() {
+  thread_local bool done = false;
+  if (!done) {
+    omp_set_max_active_levels(0);
+    done = true;
+  }
+}
+
+// Holds the lock while `factor` is supernodal.
+class BlasLock {
+ public:
+  explicit BlasLock(const cholmod_factor* factor) {
+    if (factor != nullptr && factor->is_super) lock_ = std::unique_lock<std::mutex>(BlasMutex());
+  }
+
+ private:
+  std::unique_lock<std::mutex> lock_;
+};
+
+}  // namespace
 
 struct SparseCholesky::Impl {
   cholmod_common common;
   cholmod_sparse* matrix = nullptr;
   cholmod_factor* factor = nullptr;
+  // The symbolic analysis alone. A simplicial factorization starts from a copy of it: CHOLMOD
+  // would refactorize a simplicial numeric factor in place in other arithmetic (LL' directly,
+  // where the first factorization computes LDL' and converts), so results would depend on what
+  // came before; from the copy a factorization is a function of the matrix alone.
+  cholmod_factor* symbolic = nullptr;
   bool factorized = false;
 
   Impl() {
@@ -37,6 +84,7 @@ struct SparseCholesky::Impl {
 
   void FreeAll() {
     if (factor != nullptr) cholmod_free_factor(&factor, &common);
+    if (symbolic != nullptr) cholmod_free_factor(&symbolic, &common);
     if (matrix != nullptr) cholmod_free_sparse(&matrix, &common);
     factorized = false;
   }
@@ -87,9 +135,10 @@ LinearSolverStatus SparseCholesky::Factorize(std::string* message) {
     if (message != nullptr) *message = "CHOLMOD: no matrix (allocation failed or no pattern set)";
     return LinearSolverStatus::kFailure;
   }
-  if (impl_->factor == nullptr) {
-    impl_->factor = cholmod_analyze(impl_->matrix, &impl_->common);
-    if (impl_->factor == nullptr) {
+  SerialOpenMpRegions();
+  if (impl_->symbolic == nullptr) {
+    impl_->symbolic = cholmod_analyze(impl_->matrix, &impl_->common);
+    if (impl_->symbolic == nullptr) {
       if (message != nullptr) {
         *message = "CHOLMOD analysis failed (status " + std::to_string(impl_->common.status) + ")";
       }
@@ -97,7 +146,21 @@ LinearSolverStatus SparseCholesky::Factorize(std::string* message) {
     }
     ++num_analyses_;
   }
-  const int ok = cholmod_factorize(impl_->matrix, impl_->factor, &impl_->common);
+  // A supernodal factor is refactorized in place (always LL', the same arithmetic each time, and
+  // no reallocation of its values); a simplicial one starts from a copy of the analysis.
+  if (impl_->factor == nullptr || !impl_->symbolic->is_super) {
+    if (impl_->factor != nullptr) cholmod_free_factor(&impl_->factor, &impl_->common);
+    impl_->factor = cholmod_copy_factor(impl_->symbolic, &impl_->common);
+    if (impl_->factor == nullptr) {
+      if (message != nullptr) *message = "CHOLMOD: out of memory copying the symbolic factor";
+      return LinearSolverStatus::kFailure;
+    }
+  }
+  int ok = 0;
+  {
+    const BlasLock lock(impl_->factor);
+    ok = cholmod_factorize(impl_->matrix, impl_->factor, &impl_->common);
+  }
   ++num_factorizations_;
   if (impl_->common.status == CHOLMOD_NOT_POSDEF) {
     if (message != nullptr) {
@@ -129,7 +192,11 @@ bool SparseCholesky::Solve(const Eigen::VectorXd& b, Eigen::VectorXd* x) {
   rhs.z = nullptr;
   rhs.xtype = CHOLMOD_REAL;
   rhs.dtype = CHOLMOD_DOUBLE;
-  cholmod_dense* solution = cholmod_solve(CHOLMOD_A, impl_->factor, &rhs, &impl_->common);
+  cholmod_dense* solution = nullptr;
+  {
+    const BlasLock lock(impl_->factor);
+    solution = cholmod_solve(CHOLMOD_A, impl_->factor, &rhs, &impl_->common);
+  }
   if (solution == nullptr) return false;
   x->resize(b.size());
   std::copy_n(static_cast<const double*>(solution->x), b.size(), x->data());
