@@ -157,7 +157,8 @@ RunResult RunIncremental(const PoseGraph<Pose>& graph, const Variant& variant, d
   result.peak_kb = StatusKb("VmHWM");
   result.finished = !over_budget;
   if (result.finished) {
-    for (const LoopDecision& d : replay.Decisions()) result.states.push_back(static_cast<int>(d.state));
+    for (const LoopDecision& d : replay.Decisions())
+      result.states.push_back(static_cast<int>(d.state));
   }
   return result;
 }
@@ -174,9 +175,9 @@ RunResult InChild(const Run& run, double kill_after_s) {
     const RunResult r = run();
     std::ostringstream out;
     out.precision(17);
-    out << r.finished << ' ' << r.poses_in << ' ' << r.poses << ' ' << r.seconds << ' '
-        << r.steps << ' ' << r.solves << ' ' << r.max_solves << ' ' << r.start_kb << ' '
-        << r.peak_kb << ' ' << r.step_ms.size();
+    out << r.finished << ' ' << r.poses_in << ' ' << r.poses << ' ' << r.seconds << ' ' << r.steps
+        << ' ' << r.solves << ' ' << r.max_solves << ' ' << r.start_kb << ' ' << r.peak_kb << ' '
+        << r.step_ms.size();
     for (double ms : r.step_ms) out << ' ' << ms;
     out << ' ' << r.states.size();
     for (int s : r.states) out << ' ' << s;
@@ -236,7 +237,8 @@ RunResult InChild(const Run& run, double kill_after_s) {
 template <class Pose>
 double GraphMegabytes(const PoseGraph<Pose>& graph) {
   const double bytes =
-      static_cast<double>(graph.num_vertices()) * static_cast<double>(sizeof(Vertex) + sizeof(Pose)) +
+      static_cast<double>(graph.num_vertices()) *
+          static_cast<double>(sizeof(Vertex) + sizeof(Pose)) +
       static_cast<double>(graph.num_edges()) * static_cast<double>(sizeof(Edge<Pose>));
   return bytes / (1024.0 * 1024.0);
 }
@@ -323,8 +325,8 @@ int RunCase(const Dataset& dataset,
     fmt::print(stderr, "  {} ...\n", variant.name);
     const double budget_s = settings.budget_s;
     // A step can outlast the budget by far (the budget is checked between steps).
-    RunResult r = InChild([&]() { return RunIncremental(graph, variant, budget_s); },
-                          10 * budget_s);
+    RunResult r =
+        InChild([&]() { return RunIncremental(graph, variant, budget_s); }, 10 * budget_s);
     std::string same = "-";
     if (r.finished && reference_states.empty() && reference_name.empty()) {
       reference_states = r.states;
@@ -413,7 +415,8 @@ int Main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--group-size", settings.outliers.group_size, "links per group (grouped modes)")
       ->capture_default_str();
-  app.add_option("--seed", settings.outliers.seed, "seed of the wrong loops")->capture_default_str();
+  app.add_option("--seed", settings.outliers.seed, "seed of the wrong loops")
+      ->capture_default_str();
   app.add_option("--variants",
                  variants,
                  "comma-separated subset of: all on, reuse_solves off, reuse_analysis off, "
@@ -452,9 +455,8 @@ int Main(int argc, char** argv) {
   fmt::print("{}", table);
   bool decisions_differ = false;
   for (const std::string& name : settings.datasets) {
-    const auto it = std::find_if(Datasets().begin(), Datasets().end(), [&](const Dataset& d) {
-      return d.name == name;
-    });
+    const auto it = std::find_if(
+        Datasets().begin(), Datasets().end(), [&](const Dataset& d) { return d.name == name; });
     if (it == Datasets().end()) {
       fmt::print(stderr, "irrr-bench-speed: unknown dataset {}\n", name);
       return EX_USAGE;

@@ -88,8 +88,8 @@ void CheckSame(const Run<Pose>& reference, const Run<Pose>& other, Alike alike) 
     ++differ;
     UNSCOPED_INFO("edge " << e << ": " << LoopStateName(a.state) << " (chi2 " << a.chi2 << " vs "
                           << a.threshold << ", step " << a.step << ") against "
-                          << LoopStateName(b.state) << " (chi2 " << b.chi2 << " vs "
-                          << b.threshold << ", step " << b.step << ")");
+                          << LoopStateName(b.state) << " (chi2 " << b.chi2 << " vs " << b.threshold
+                          << ", step " << b.step << ")");
   }
   CHECK(differ == 0);
   if (alike != Alike::kBitwise) return;
@@ -105,7 +105,7 @@ void CheckSame(const Run<Pose>& reference, const Run<Pose>& other, Alike alike) 
   for (size_t v = 0; v < reference.estimate.size(); ++v) {
     poses_differ +=
         (reference.estimate[v].ErrorVector() - other.estimate[v].ErrorVector()).norm() == 0.0 ? 0
-                                                                                               : 1;
+                                                                                              : 1;
   }
   CHECK(poses_differ == 0);
 }
@@ -168,8 +168,8 @@ TEMPLATE_TEST_CASE("Every speed-up of iRRR leaves every decision as it is",
   SECTION("batch RRR on the pool") {
     ThreadPool pool(2);
     Run<TestType> parallel;
-    parallel.decisions = RunBatchRrr(
-        graph, all_on, &parallel.estimate, pool.AsParallelFor(), pool.size());
+    parallel.decisions =
+        RunBatchRrr(graph, all_on, &parallel.estimate, pool.AsParallelFor(), pool.size());
     Run<TestType> serial;
     serial.decisions = RunBatchRrr(graph, all_on, &serial.estimate);
     CheckSame(serial, parallel, Alike::kBitwise);
