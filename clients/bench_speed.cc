@@ -4,9 +4,10 @@
 // For every case (a dataset plus MakeOutliers' wrong loops) and every variant (all speed-ups on,
 // then each switched off in turn), the whole graph is replayed in arrival order with every step
 // timed, in a child process of its own: its peak memory is its own, and a run over the time budget
-// is stopped. Printed per run: total time, step latency percentiles, optimizations per step, peak
-// memory; and whether its decisions equal those of the first variant, loop for loop (exit code
-// 70 if any differs, so that the benchmark is also the test of "identical decisions").
+// is stopped. Printed per run: total time, step latency percentiles, optimizations per step, their
+// iterations per optimization and the time per iteration (where the time goes), peak memory; and
+// whether its decisions equal those of the first variant, loop for loop (exit code 70 if any
+// differs, so that the benchmark is also the test of "identical decisions").
 
 #include <fcntl.h>
 #include <signal.h>
@@ -113,7 +114,8 @@ struct RunResult {
   double seconds = 0.0;
   int steps = 0;
   long solves = 0;
-  int max_solves = 0;  // in one step
+  int max_solves = 0;   // in one step
+  long iterations = 0;  // of the optimizations run
   std::vector<double> step_ms;
   long start_kb = 0;  // RSS when the run started (the graph, loaded by the parent, included)
   long peak_kb = 0;   // VmHWM at the end
@@ -138,6 +140,7 @@ RunResult RunIncremental(const PoseGraph<Pose>& graph, const Variant& variant, d
       const StepResult step = irrr.RunStep();
       result.step_ms.push_back(1e3 * SecondsSince(step_start));
       result.solves += step.solves;
+      result.iterations += step.iterations;
       result.max_solves = std::max(result.max_solves, step.solves);
       over_budget = SecondsSince(start) > budget_s;
     }
@@ -176,8 +179,8 @@ RunResult InChild(const Run& run, double kill_after_s) {
     std::ostringstream out;
     out.precision(17);
     out << r.finished << ' ' << r.poses_in << ' ' << r.poses << ' ' << r.seconds << ' ' << r.steps
-        << ' ' << r.solves << ' ' << r.max_solves << ' ' << r.start_kb << ' ' << r.peak_kb << ' '
-        << r.step_ms.size();
+        << ' ' << r.solves << ' ' << r.max_solves << ' ' << r.iterations << ' ' << r.start_kb << ' '
+        << r.peak_kb << ' ' << r.step_ms.size();
     for (double ms : r.step_ms) out << ' ' << ms;
     out << ' ' << r.states.size();
     for (int s : r.states) out << ' ' << s;
@@ -223,7 +226,8 @@ RunResult InChild(const Run& run, double kill_after_s) {
   std::istringstream in(text);
   size_t count = 0;
   in >> result.finished >> result.poses_in >> result.poses >> result.seconds >> result.steps >>
-      result.solves >> result.max_solves >> result.start_kb >> result.peak_kb >> count;
+      result.solves >> result.max_solves >> result.iterations >> result.start_kb >>
+      result.peak_kb >> count;
   result.step_ms.resize(count);
   for (double& ms : result.step_ms) in >> ms;
   in >> count;
@@ -353,7 +357,7 @@ int RunCase(const Dataset& dataset,
     const std::string row =
         ran ? fmt::format(
                   "| {} | {} | {} | {} | {} | {:.1f} | {:.1f} | {:.1f} | {:.1f} | {:.1f} | {} | "
-                  "{:.1f} | {:.1f} | {:.1f} | {:.1f} | {:.2f} | {} |\n",
+                  "{:.1f} | {:.2f} | {:.1f} | {:.1f} | {:.1f} | {:.1f} | {:.2f} | {} |\n",
                   case_name,
                   variant.name,
                   variant.threads,
@@ -365,6 +369,8 @@ int RunCase(const Dataset& dataset,
                   sorted.empty() ? 0.0 : sorted.back(),
                   r.steps > 0 ? static_cast<double>(r.solves) / r.steps : 0.0,
                   r.max_solves,
+                  r.solves > 0 ? static_cast<double>(r.iterations) / r.solves : 0.0,
+                  r.iterations > 0 ? 1e3 * r.seconds / r.iterations : 0.0,
                   static_cast<double>(r.peak_kb) / 1024.0,
                   static_cast<double>(r.peak_kb - r.start_kb) / 1024.0,
                   graph_mb,
@@ -372,7 +378,8 @@ int RunCase(const Dataset& dataset,
                   batch.seconds,
                   same)
             : fmt::format(
-                  "| {} | {} | {} | failed | - | - | - | - | - | - | - | - | - | {:.1f} | {:.1f} | "
+                  "| {} | {} | {} | failed | - | - | - | - | - | - | - | - | - | - | - | {:.1f} | "
+                  "{:.1f} | "
                   "{:.2f} | - |\n",
                   case_name,
                   variant.name,
@@ -449,9 +456,9 @@ int Main(int argc, char** argv) {
 
   std::string table =
       "| case | variant | threads | total s | steps | step p50 ms | p90 ms | p99 ms | max ms | "
-      "solves/step | max solves | peak MB | growth MB | graph MB | batch solve MB | batch solve "
-      "s | same decisions |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
-      "\n";
+      "solves/step | max solves | iterations/solve | ms/iteration | peak MB | growth MB | graph MB "
+      "| batch solve MB | batch solve s | same decisions |\n"
+      "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   fmt::print("{}", table);
   bool decisions_differ = false;
   for (const std::string& name : settings.datasets) {

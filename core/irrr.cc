@@ -42,7 +42,8 @@ struct Consensus {
   // Per good cluster: the candidates Algorithm 2 eliminated while it was inconsistent too.
   std::vector<std::vector<int>> opponents;
   int step = 0;
-  int solves = 0;  // optimizations run (reused ones not counted)
+  int solves = 0;      // optimizations run (reused ones not counted)
+  int iterations = 0;  // their Gauss-Newton / Levenberg-Marquardt iterations
 
   // Changes whenever `warm` does: warm-started problems of different versions differ.
   int64_t warm_version = 0;
@@ -327,7 +328,10 @@ struct Consensus {
       Optimizer<Pose> local(options->optimizer);
       results[i] = std::make_shared<const Optimum>(Compute(*missing[i], &local));
     });
-    for (size_t i = 0; i < missing.size(); ++i) Remember(missing[i]->key, std::move(results[i]));
+    for (size_t i = 0; i < missing.size(); ++i) {
+      iterations += results[i]->summary.iterations;
+      Remember(missing[i]->key, std::move(results[i]));
+    }
     solves += static_cast<int>(missing.size());
   }
 
@@ -356,6 +360,7 @@ struct Consensus {
     if (optimum == nullptr) {
       optimum = std::make_shared<const Optimum>(Compute(p, SerialOptimizer()));
       ++solves;
+      iterations += optimum->summary.iterations;
       Remember(p.key, optimum);
     }
     return Finish(sessions, p, *optimum, base);
@@ -1039,6 +1044,7 @@ StepResult Irrr<Pose>::RunStep() {
   result.step = consensus.step;
   result.cluster = cluster;
   consensus.solves = 0;
+  consensus.iterations = 0;
 
   // The components (under the current good set) that the cluster touches.
   const std::vector<int> component = Components();
@@ -1069,6 +1075,7 @@ StepResult Irrr<Pose>::RunStep() {
     }
   }
   result.solves = consensus.solves;
+  result.iterations = consensus.iterations;
   ++consensus.step;
   return result;
 }

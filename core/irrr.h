@@ -152,6 +152,7 @@ struct StepResult {
   std::vector<int> changed_loops;  // graph edge indices whose decision changed
   std::vector<int> sessions;       // sessions whose estimate was recomputed
   int solves = 0;                  // optimizations run
+  int iterations = 0;              // their iterations (each one linearization and factorization)
   OptimizerSummary final_summary;  // of the optimization with the good set
 };
 
