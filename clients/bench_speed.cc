@@ -76,6 +76,10 @@ std::vector<Variant> Variants(int threads) {
   v.options.local_problems = false;
   variants.push_back(v);
   v = variants.front();
+  v.name = "lazy_lookahead off";
+  v.options.lazy_lookahead = false;
+  variants.push_back(v);
+  v = variants.front();
   v.name = "1 thread";
   v.threads = 1;
   variants.push_back(v);
@@ -427,7 +431,7 @@ int Main(int argc, char** argv) {
   app.add_option("--variants",
                  variants,
                  "comma-separated subset of: all on, reuse_solves off, reuse_analysis off, "
-                 "local_problems off, 1 thread, warm_start on (default: all)");
+                 "local_problems off, lazy_lookahead off, 1 thread, warm_start on (default: all)");
   app.add_option("--threads", settings.threads, "threads of the parallel variants")
       ->check(CLI::PositiveNumber)
       ->capture_default_str();

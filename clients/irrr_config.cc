@@ -41,6 +41,7 @@ void VisitFields(IrrrOptions& options, Visitor& visit) {
   visit("warm_start", options.warm_start);
   visit("reuse_solves", options.reuse_solves);
   visit("reuse_analysis", options.reuse_analysis);
+  visit("lazy_lookahead", options.lazy_lookahead);
   visit("max_cluster_size", options.max_cluster_size);
   visit("optimizer", options.optimizer);
 }

@@ -6,6 +6,7 @@
 #include <functional>
 #include <map>
 #include <memory>
+#include <numeric>
 #include <tuple>
 
 #include <boost/math/distributions/chi_squared.hpp>
@@ -727,21 +728,42 @@ struct Consensus {
         using Rank = std::tuple<size_t, bool, double>;
         Rank best;
         bool have_best = false;
-        std::vector<Problem> rests;
-        for (int k = 0; k < lookahead; ++k) {
+        // The first two parts of a rank are known before any solve. Leave-one-outs are tried by
+        // them (in index order among equals, the order that breaks ties as before); with
+        // options->lazy_lookahead, once one passes, those whose first two parts are larger
+        // cannot outrank it and are not solved.
+        auto known_rank = [&](int k) {
+          const int c = by_index[k].second;
+          return std::make_pair(links[c].size(), in_good[c] != 0);
+        };
+        std::vector<int> order(lookahead);
+        std::iota(order.begin(), order.end(), 0);
+        if (options->lazy_lookahead) {
+          std::stable_sort(order.begin(), order.end(), [&](int a, int b) {
+            return known_rank(a) < known_rank(b);
+          });
+        }
+        auto rest_without = [&](int k) {
           std::vector<int> rest;
           for (int c : tested) {
             if (c != by_index[k].second) rest.push_back(c);
           }
-          rests.push_back(Prepare(sessions, rest, false));
+          return rest;
+        };
+        std::vector<Problem> rests;
+        const int prefetched =
+            options->lazy_lookahead ? std::min(lookahead, std::max(workers, 1)) : lookahead;
+        for (int i = 0; i < prefetched; ++i) {
+          rests.push_back(Prepare(sessions, rest_without(order[i]), false));
         }
         Prefetch(rests);
-        for (int k = 0; k < lookahead; ++k) {
-          const int left_out = by_index[k].second;
-          std::vector<int> rest;
-          for (int c : tested) {
-            if (c != left_out) rest.push_back(c);
+        for (int k : order) {
+          if (have_best && options->lazy_lookahead &&
+              known_rank(k) > std::make_pair(std::get<0>(best), std::get<1>(best))) {
+            break;
           }
+          const int left_out = by_index[k].second;
+          const std::vector<int> rest = rest_without(k);
           const Solution without = Solve(sessions, rest, false);
           if (!without.summary.IsSolutionUsable()) continue;
           if (!Judge(rest, without.summary, incremental).pass) continue;

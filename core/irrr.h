@@ -81,6 +81,10 @@ struct IrrrOptions {
   // asked for again with the same loops, spans and start (the line-8 optimization after
   // Algorithm 1, the final one after a passing joint test, prefetched ones) is not run again.
   bool reuse_solves = true;
+  // When Algorithm 2's joint test fails, the lookahead's leave-one-outs are solved in the order of
+  // what is known of their rank before solving (links, good member) and stop once a passing one
+  // cannot be outranked by those left (off: every one is solved).
+  bool lazy_lookahead = true;
   // One optimizer is kept across solves, so that its symbolic analysis (ordering, elimination
   // tree, supernodes) serves every next solve of the same sparsity pattern (off: a fresh one each).
   bool reuse_analysis = true;

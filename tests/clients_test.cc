@@ -102,6 +102,7 @@ TEST_CASE("Every key of the irrr section is read into its field", "[config]") {
       {"warm_start", true},
       {"reuse_solves", false},
       {"reuse_analysis", false},
+      {"lazy_lookahead", false},
       {"max_cluster_size", 40},
       {"optimizer",
        {{"algorithm", "levenberg_marquardt"},
@@ -131,6 +132,7 @@ TEST_CASE("Every key of the irrr section is read into its field", "[config]") {
   CHECK_FALSE(options.local_problems);
   CHECK_FALSE(options.reuse_solves);
   CHECK_FALSE(options.reuse_analysis);
+  CHECK_FALSE(options.lazy_lookahead);
   CHECK(options.warm_start);
   CHECK(options.optimizer.algorithm == OptimizerAlgorithm::kLevenbergMarquardt);
   CHECK(options.optimizer.max_iterations == 7);

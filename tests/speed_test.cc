@@ -156,6 +156,12 @@ TEMPLATE_TEST_CASE("Every speed-up of iRRR leaves every decision as it is",
     options.reuse_analysis = false;
     CheckSame(reference, Incremental(graph, options, 2), Alike::kBitwise);
   }
+  SECTION("lazy_lookahead off") {
+    IrrrOptions options = all_on;
+    options.lazy_lookahead = false;
+    const Run<TestType> run = Incremental(graph, options, 1);
+    CheckSame(reference, run, Alike::kBitwise);
+  }
   SECTION("local_problems off") {
     // Whole sessions instead of the looped spans: the same optimum in exact arithmetic, reached
     // along another path. In 3D with wrong loops the two can settle in minima far enough apart to
