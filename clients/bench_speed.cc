@@ -61,32 +61,23 @@ struct Variant {
 
 // All speed-ups on, then each off in turn (and the warm start, off by default, on).
 std::vector<Variant> Variants(int threads) {
-  std::vector<Variant> variants;
-  variants.push_back({"all on", IrrrOptions(), threads});
-  Variant v = variants.front();
-  v.name = "reuse_solves off";
-  v.options.reuse_solves = false;
-  variants.push_back(v);
-  v = variants.front();
-  v.name = "reuse_analysis off";
-  v.options.reuse_analysis = false;
-  variants.push_back(v);
-  v = variants.front();
-  v.name = "local_problems off";
-  v.options.local_problems = false;
-  variants.push_back(v);
-  v = variants.front();
-  v.name = "lazy_lookahead off";
-  v.options.lazy_lookahead = false;
-  variants.push_back(v);
-  v = variants.front();
-  v.name = "1 thread";
-  v.threads = 1;
-  variants.push_back(v);
-  v = variants.front();
-  v.name = "warm_start on";
-  v.options.warm_start = true;
-  variants.push_back(v);
+  const Variant all_on{"all on", IrrrOptions(), threads};
+  std::vector<Variant> variants = {all_on};
+  auto with = [&](const std::string& name, bool IrrrOptions::*option, bool value) {
+    Variant v = all_on;
+    v.name = name;
+    v.options.*option = value;
+    variants.push_back(v);
+  };
+  with("reuse_solves off", &IrrrOptions::reuse_solves, false);
+  with("reuse_analysis off", &IrrrOptions::reuse_analysis, false);
+  with("local_problems off", &IrrrOptions::local_problems, false);
+  with("lazy_lookahead off", &IrrrOptions::lazy_lookahead, false);
+  Variant serial = all_on;
+  serial.name = "1 thread";
+  serial.threads = 1;
+  variants.push_back(serial);
+  with("warm_start on", &IrrrOptions::warm_start, true);
   return variants;
 }
 
