@@ -374,8 +374,7 @@ int RunCase(const Dataset& dataset,
                   same)
             : fmt::format(
                   "| {} | {} | {} | failed | - | - | - | - | - | - | - | - | - | - | - | {:.1f} | "
-                  "{:.1f} | "
-                  "{:.2f} | - |\n",
+                  "{:.1f} | {:.2f} | - |\n",
                   case_name,
                   variant.name,
                   variant.threads,

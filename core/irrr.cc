@@ -292,6 +292,12 @@ struct Consensus {
     return optimizer.get();
   }
 
+  // An optimization that ran (looked-up ones are not counted).
+  void Count(const Optimum& optimum) {
+    ++solves;
+    iterations += optimum.summary.iterations;
+  }
+
   std::shared_ptr<const Optimum> Lookup(const std::vector<int64_t>& key) const {
     if (!options->reuse_solves) return nullptr;
     const auto it = memo.find(key);
@@ -330,10 +336,9 @@ struct Consensus {
       results[i] = std::make_shared<const Optimum>(Compute(*missing[i], &local));
     });
     for (size_t i = 0; i < missing.size(); ++i) {
-      iterations += results[i]->summary.iterations;
+      Count(*results[i]);
       Remember(missing[i]->key, std::move(results[i]));
     }
-    solves += static_cast<int>(missing.size());
   }
 
   // Optimizes the odometry of `sessions` plus the links of `clusters` (the paper's PoseGraphIC,
@@ -360,8 +365,7 @@ struct Consensus {
     std::shared_ptr<const Optimum> optimum = Lookup(p.key);
     if (optimum == nullptr) {
       optimum = std::make_shared<const Optimum>(Compute(p, SerialOptimizer()));
-      ++solves;
-      iterations += optimum->summary.iterations;
+      Count(*optimum);
       Remember(p.key, optimum);
     }
     return Finish(sessions, p, *optimum, base);

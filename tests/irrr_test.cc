@@ -8,11 +8,14 @@
 
 #include "core/graph_io.h"
 #include "core/outliers.h"
+#include "tests/corrupted_graph.h"
 #include "tests/synthetic_graph.h"
 
 namespace irrr {
 namespace {
 
+using testing::Corrupted;
+using testing::MakeCorrupted;
 using testing::MakeSyntheticGraph;
 using testing::RelativeDifference;
 using testing::SyntheticOptions;
@@ -27,31 +30,6 @@ TEST_CASE("Chi-square quantiles match published tables", "[irrr]") {
   CHECK(ChiSquareQuantile(0.95, 6) == Approx(12.5916).margin(5e-5));
   CHECK(ChiSquareQuantile(0.99, 1) == Approx(6.6349).margin(5e-5));
   CHECK(ChiSquareQuantile(0.95, 100) == Approx(124.3421).margin(5e-4));
-}
-
-template <class Pose>
-struct Corrupted {
-  PoseGraph<Pose> clean;
-  PoseGraph<Pose> graph;         // clean + outliers appended
-  std::vector<char> is_outlier;  // per edge of `graph`
-};
-
-template <class Pose>
-Corrupted<Pose> MakeCorrupted(const SyntheticOptions& synthetic, const OutlierOptions& outliers) {
-  Corrupted<Pose> out;
-  out.clean = MakeSyntheticGraph<Pose>(synthetic).graph;
-  out.graph = out.clean;
-  std::vector<OutlierLink<Pose>> links;
-  const Status status = MakeOutliers(out.clean, outliers, &links);
-  INFO(status.message());
-  REQUIRE(status.ok());
-  out.is_outlier.assign(out.clean.num_edges(), 0);
-  for (const OutlierLink<Pose>& link : links) {
-    REQUIRE(
-        out.graph.AddLoop(link.from, link.to, link.measurement, link.information, nullptr).ok());
-    out.is_outlier.push_back(1);
-  }
-  return out;
 }
 
 // The target: every true loop accepted. Not met everywhere yet (today 1.00 on the 3D

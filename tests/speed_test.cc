@@ -18,7 +18,7 @@
 #include "clients/thread_pool.h"
 #include "core/irrr.h"
 #include "core/outliers.h"
-#include "tests/synthetic_graph.h"
+#include "tests/corrupted_graph.h"
 
 namespace irrr {
 namespace {
@@ -34,19 +34,11 @@ PoseGraph<Pose> CorruptedWorld(int sessions, OutlierMode mode, uint32_t seed) {
   synthetic.loop_probability = 0.5;
   synthetic.information_scale = 0.25;
   synthetic.seed = seed;
-  PoseGraph<Pose> graph = testing::MakeSyntheticGraph<Pose>(synthetic).graph;
   OutlierOptions outliers;
   outliers.mode = mode;
   outliers.count = 30;
   outliers.seed = seed;
-  std::vector<OutlierLink<Pose>> links;
-  const Status status = MakeOutliers(graph, outliers, &links);
-  INFO(status.message());
-  REQUIRE(status.ok());
-  for (const OutlierLink<Pose>& link : links) {
-    REQUIRE(graph.AddLoop(link.from, link.to, link.measurement, link.information, nullptr).ok());
-  }
-  return graph;
+  return testing::MakeCorrupted<Pose>(synthetic, outliers).graph;
 }
 
 template <class Pose>

@@ -1,0 +1,44 @@
+#ifndef IRRR_TESTS_CORRUPTED_GRAPH_H_
+#define IRRR_TESTS_CORRUPTED_GRAPH_H_
+
+// A synthetic world with MakeOutliers' wrong loops appended, for the iRRR and speed tests.
+
+#include <vector>
+
+#include <catch2/catch.hpp>
+
+#include "core/outliers.h"
+#include "tests/synthetic_graph.h"
+
+namespace irrr {
+namespace testing {
+
+template <class Pose>
+struct Corrupted {
+  PoseGraph<Pose> clean;
+  PoseGraph<Pose> graph;         // clean + outliers appended
+  std::vector<char> is_outlier;  // per edge of `graph`
+};
+
+template <class Pose>
+Corrupted<Pose> MakeCorrupted(const SyntheticOptions& synthetic, const OutlierOptions& outliers) {
+  Corrupted<Pose> out;
+  out.clean = MakeSyntheticGraph<Pose>(synthetic).graph;
+  out.graph = out.clean;
+  std::vector<OutlierLink<Pose>> links;
+  const Status status = MakeOutliers(out.clean, outliers, &links);
+  INFO(status.message());
+  REQUIRE(status.ok());
+  out.is_outlier.assign(out.clean.num_edges(), 0);
+  for (const OutlierLink<Pose>& link : links) {
+    REQUIRE(
+        out.graph.AddLoop(link.from, link.to, link.measurement, link.information, nullptr).ok());
+    out.is_outlier.push_back(1);
+  }
+  return out;
+}
+
+}  // namespace testing
+}  // namespace irrr
+
+#endif  // IRRR_TESTS_CORRUPTED_GRAPH_H_
