@@ -13,6 +13,21 @@
 namespace irrr {
 namespace testing {
 
+// 240 poses with small noise and conservative information, loops at half the revisits.
+template <class Pose>
+SyntheticOptions NoisyWorld(uint32_t seed) {
+  SyntheticOptions options;
+  options.num_poses = 240;
+  options.translation_sigma_m = 0.05;
+  options.rotation_sigma_rad = 0.01;
+  options.loop_probability = 0.5;
+  // Conservative information, like the public datasets': with exact information the per-link
+  // test at alpha = 0.95 rejects about 5% of true links by construction.
+  options.information_scale = 0.25;
+  options.seed = seed;
+  return options;
+}
+
 template <class Pose>
 struct Corrupted {
   PoseGraph<Pose> clean;

@@ -17,6 +17,7 @@ namespace {
 using testing::Corrupted;
 using testing::MakeCorrupted;
 using testing::MakeSyntheticGraph;
+using testing::NoisyWorld;
 using testing::RelativeDifference;
 using testing::SyntheticOptions;
 
@@ -90,20 +91,6 @@ void CheckEstimateIsOptimumOfAccepted(const Corrupted<Pose>& corrupted,
   RelativeDifference(robust, polished, 0, &translation_m, &rotation_rad);
   CHECK(translation_m < kSameEstimateM);
   CHECK(rotation_rad < kSameEstimateRad);
-}
-
-template <class Pose>
-SyntheticOptions NoisyWorld(uint32_t seed) {
-  SyntheticOptions options;
-  options.num_poses = 240;
-  options.translation_sigma_m = 0.05;
-  options.rotation_sigma_rad = 0.01;
-  options.loop_probability = 0.5;
-  // Conservative information, like the public datasets': with exact information the per-link
-  // test at alpha = 0.95 rejects about 5% of true links by construction.
-  options.information_scale = 0.25;
-  options.seed = seed;
-  return options;
 }
 
 // The synthetic robot revisits places every few poses; a cluster gap of 10 poses keeps clusters

@@ -25,15 +25,10 @@ namespace {
 
 template <class Pose>
 PoseGraph<Pose> CorruptedWorld(int sessions, OutlierMode mode, uint32_t seed) {
-  testing::SyntheticOptions synthetic;
+  testing::SyntheticOptions synthetic = testing::NoisyWorld<Pose>(seed);
   // 3D problems cost several times what 2D ones do: a smaller world keeps the test short.
   synthetic.num_poses = Pose::kDim == 6 ? 120 : 240;
   synthetic.num_sessions = sessions;
-  synthetic.translation_sigma_m = 0.05;
-  synthetic.rotation_sigma_rad = 0.01;
-  synthetic.loop_probability = 0.5;
-  synthetic.information_scale = 0.25;
-  synthetic.seed = seed;
   OutlierOptions outliers;
   outliers.mode = mode;
   outliers.count = 30;
