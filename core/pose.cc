@@ -16,14 +16,6 @@ Eigen::Matrix2d RotationGenerator2() {
   return s;
 }
 
-Eigen::Matrix2d Rotation2(double yaw_rad) {
-  const double c = std::cos(yaw_rad);
-  const double s = std::sin(yaw_rad);
-  Eigen::Matrix2d r;
-  r << c, -s, s, c;
-  return r;
-}
-
 // V(theta) of the SE(2) exponential, t = V * rho: [[a, -b], [b, a]], a = sin(t)/t,
 // b = (1 - cos(t))/t.
 void Se2VCoefficients(double theta, double* a, double* b) {
@@ -77,7 +69,12 @@ Eigen::Quaterniond CanonicalQuaternion(const Eigen::Quaterniond& q) {
 
 }  // namespace
 
-double NormalizeAngle(double angle_rad) { return std::remainder(angle_rad, 2.0 * M_PI); }
+double NormalizeAngle(double angle_rad) {
+  // remainder() returns its argument unchanged in [-pi, pi] (quotient 0, ties to even): the test
+  // only skips the call, which was 4% of iRRR's time.
+  if (std::abs(angle_rad) <= M_PI) return angle_rad;
+  return std::remainder(angle_rad, 2.0 * M_PI);
+}
 
 Eigen::Matrix3d Skew(const Eigen::Vector3d& v) {
   Eigen::Matrix3d m;
@@ -116,12 +113,16 @@ Eigen::Vector3d LogSO3(const Eigen::Quaterniond& q_in) {
 // ---- SE(2) ----
 
 Pose2::Pose2(double x_m, double y_m, double yaw_rad)
-    : translation_(x_m, y_m), yaw_rad_(NormalizeAngle(yaw_rad)) {}
+    : translation_(x_m, y_m),
+      yaw_rad_(NormalizeAngle(yaw_rad)),
+      cos_yaw_(std::cos(yaw_rad_)),
+      sin_yaw_(std::sin(yaw_rad_)) {}
 
 Pose2::Pose2(const Translation& translation, double yaw_rad)
-    : translation_(translation), yaw_rad_(NormalizeAngle(yaw_rad)) {}
-
-Pose2::Rotation Pose2::rotation() const { return Rotation2(yaw_rad_); }
+    : translation_(translation),
+      yaw_rad_(NormalizeAngle(yaw_rad)),
+      cos_yaw_(std::cos(yaw_rad_)),
+      sin_yaw_(std::sin(yaw_rad_)) {}
 
 Pose2 Pose2::operator*(const Pose2& rhs) const {
   return Pose2(translation_ + rotation() * rhs.translation_, yaw_rad_ + rhs.yaw_rad_);

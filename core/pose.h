@@ -37,7 +37,11 @@ class Pose2 {
 
   const Translation& translation() const { return translation_; }
   double yaw_rad() const { return yaw_rad_; }
-  Rotation rotation() const;
+  Rotation rotation() const {
+    Rotation r;
+    r << cos_yaw_, -sin_yaw_, sin_yaw_, cos_yaw_;
+    return r;
+  }
 
   Pose2 operator*(const Pose2& rhs) const;
   Translation operator*(const Translation& point) const;
@@ -53,6 +57,10 @@ class Pose2 {
  private:
   Translation translation_ = Translation::Zero();
   double yaw_rad_ = 0.0;
+  // cos and sin of the yaw, computed once: residuals and Jacobians read them for every edge at
+  // every iteration (recomputing them there was 10% of iRRR's time).
+  double cos_yaw_ = 1.0;
+  double sin_yaw_ = 0.0;
 };
 
 // SE(3): translation in metres, rotation as a unit quaternion.
