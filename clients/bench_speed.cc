@@ -250,7 +250,41 @@ struct Settings {
   std::vector<std::string> variants;  // empty: all
   int threads = 2;
   double budget_s = 600.0;
+  bool floor = false;
 };
+
+// The floor under any iRRR that decides like this one: every wrong group is judged by Algorithm 2
+// in a joint optimization from dead reckoning with the true loops that arrived before it (the
+// notes' start; warm starts lose most true loops, see README), so one such solve per group is
+// work that no speed-up preserving the decisions can skip. Solved one after the other with one
+// optimizer (its analysis reused where the pattern allows); returns their time and iterations.
+template <class Pose>
+RunResult WrongLoopFloor(const PoseGraph<Pose>& graph, int first_wrong_edge, int group_size) {
+  RunResult result;
+  const auto start = std::chrono::steady_clock::now();
+  Optimizer<Pose> optimizer;
+  const std::vector<Pose> dead_reckoning = graph.OdometryEstimate();
+  for (int first = first_wrong_edge; first < graph.num_edges(); first += group_size) {
+    const int last = std::min(graph.num_edges(), first + group_size);
+    int arrived = 0;  // poses before this index have arrived when the group's last link does
+    for (int e = first; e < last; ++e) {
+      arrived = std::max({arrived, graph.edge(e).from + 1, graph.edge(e).to + 1});
+    }
+    std::vector<char> active(graph.num_edges(), 0);
+    for (int e = 0; e < graph.num_edges(); ++e) {
+      const Edge<Pose>& edge = graph.edge(e);
+      const bool wrong = e >= first_wrong_edge;
+      const bool in_group = e >= first && e < last;
+      active[e] = (in_group || !wrong) && edge.from < arrived && edge.to < arrived ? 1 : 0;
+    }
+    std::vector<Pose> x = dead_reckoning;
+    result.iterations += optimizer.Solve(graph, active, &x).iterations;
+    ++result.solves;
+  }
+  result.seconds = SecondsSince(start);
+  result.finished = true;
+  return result;
+}
 
 template <class Pose>
 int RunCase(const Dataset& dataset,
@@ -279,6 +313,7 @@ int RunCase(const Dataset& dataset,
     fmt::print(stderr, "irrr-bench-speed: {}: {}\n", dataset.name, s.message());
     return EX_DATAERR;
   }
+  const int first_wrong_edge = graph.num_edges();
   for (const OutlierLink<Pose>& link : links) {
     IRRR_CHECK(graph.AddLoop(link.from, link.to, link.measurement, link.information, nullptr).ok());
   }
@@ -312,6 +347,19 @@ int RunCase(const Dataset& dataset,
              graph_mb,
              batch.seconds,
              batch_mb);
+  if (settings.floor) {
+    const int group_size = IsGrouped(outliers.mode) ? std::max(1, outliers.group_size) : 1;
+    const RunResult floor =
+        InChild([&]() { return WrongLoopFloor(graph, first_wrong_edge, group_size); },
+                10 * settings.budget_s);
+    fmt::print(stderr,
+               "{}: floor: {} joint solves from dead reckoning, one per wrong group against the "
+               "true loops before it: {:.2f} s, {:.1f} iterations per solve\n",
+               case_name,
+               floor.solves,
+               floor.seconds,
+               floor.solves > 0 ? static_cast<double>(floor.iterations) / floor.solves : 0.0);
+  }
 
   std::vector<int> reference_states;
   std::string reference_name;
@@ -422,6 +470,10 @@ int Main(int argc, char** argv) {
                  variants,
                  "comma-separated subset of: all on, reuse_solves off, reuse_analysis off, "
                  "local_problems off, lazy_lookahead off, 1 thread, warm_start on (default: all)");
+  app.add_flag("--floor",
+               settings.floor,
+               "also time one joint solve from dead reckoning per wrong group (the work no "
+               "decision-preserving speed-up can skip)");
   app.add_option("--threads", settings.threads, "threads of the parallel variants")
       ->check(CLI::PositiveNumber)
       ->capture_default_str();
