@@ -100,6 +100,52 @@ TEST_CASE("New values with the same pattern reuse the symbolic analysis", "[spar
   CHECK(cholesky.num_factorizations() == 3);
 }
 
+TEST_CASE("Permuting once per pattern gives CHOLMOD's factor bit for bit", "[sparse_cholesky]") {
+  // The matrix permuted by SparseCholesky must be the one CHOLMOD builds at each factorization:
+  // same fill, same solutions to the last bit, over refactorizations with new values.
+  const uint32_t seed = GENERATE(1u, 2u, 3u, 4u);
+  INFO("seed " << seed);
+  constexpr int kSize = 300;
+  Eigen::MatrixXi pattern;
+  const Eigen::MatrixXd a = RandomSparseSpd(kSize, seed, &pattern);
+  std::vector<int> starts;
+  std::vector<int> rows;
+  std::vector<double> values;
+  ToUpperColumns(a, pattern, &starts, &rows, &values);
+  SparseCholesky once(/*permute_once=*/true);
+  SparseCholesky each_time(/*permute_once=*/false);
+  once.SetPattern(kSize, starts, rows);
+  each_time.SetPattern(kSize, starts, rows);
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> scale(0.5, 1.0);
+  for (int round = 0; round < 3; ++round) {
+    // Off-diagonal entries shrink by a random factor (the diagonal, last in each column, stays):
+    // new values, still diagonally dominant.
+    for (int c = 0; c < kSize; ++c) {
+      for (int k = starts[c]; k < starts[c + 1]; ++k) {
+        const bool diagonal = k == starts[c + 1] - 1;
+        const double v = diagonal ? values[k] : values[k] * scale(rng);
+        once.mutable_values()[k] = v;
+        each_time.mutable_values()[k] = v;
+      }
+    }
+    REQUIRE(once.Factorize(nullptr) == LinearSolverStatus::kSuccess);
+    REQUIRE(each_time.Factorize(nullptr) == LinearSolverStatus::kSuccess);
+    REQUIRE(once.permuted_once());  // a matrix this sparse factorizes simplicially
+    REQUIRE_FALSE(each_time.permuted_once());
+    CHECK(once.factor_nonzeros() == each_time.factor_nonzeros());
+    const Eigen::VectorXd b = Eigen::VectorXd::LinSpaced(kSize, -3.0, 1.0 + round);
+    Eigen::VectorXd x_once;
+    Eigen::VectorXd x_each_time;
+    REQUIRE(once.Solve(b, &x_once));
+    REQUIRE(each_time.Solve(b, &x_each_time));
+    int differ = 0;
+    for (int k = 0; k < kSize; ++k) differ += x_once[k] != x_each_time[k] ? 1 : 0;
+    CHECK(differ == 0);
+    CHECK(x_once.allFinite());
+  }
+}
+
 TEST_CASE("An indefinite matrix is reported as not positive definite", "[sparse_cholesky]") {
   // [[1, 2], [2, 1]] has eigenvalues 3 and -1.
   SparseCholesky cholesky;
