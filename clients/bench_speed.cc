@@ -278,7 +278,9 @@ RunResult WrongLoopFloor(const PoseGraph<Pose>& graph, int first_wrong_edge, int
       active[e] = (in_group || !wrong) && edge.from < arrived && edge.to < arrived ? 1 : 0;
     }
     std::vector<Pose> x = dead_reckoning;
+    const auto solve_start = std::chrono::steady_clock::now();
     result.iterations += optimizer.Solve(graph, active, &x).iterations;
+    result.step_ms.push_back(1e3 * SecondsSince(solve_start));
     ++result.solves;
   }
   result.seconds = SecondsSince(start);
@@ -352,13 +354,19 @@ int RunCase(const Dataset& dataset,
     const RunResult floor =
         InChild([&]() { return WrongLoopFloor(graph, first_wrong_edge, group_size); },
                 10 * settings.budget_s);
+    std::vector<double> sorted = floor.step_ms;
+    std::sort(sorted.begin(), sorted.end());
     fmt::print(stderr,
                "{}: floor: {} joint solves from dead reckoning, one per wrong group against the "
-               "true loops before it: {:.2f} s, {:.1f} iterations per solve\n",
+               "true loops before it: {:.2f} s, {:.1f} iterations per solve, solve p50 / p99 / "
+               "max {:.1f} / {:.1f} / {:.1f} ms\n",
                case_name,
                floor.solves,
                floor.seconds,
-               floor.solves > 0 ? static_cast<double>(floor.iterations) / floor.solves : 0.0);
+               floor.solves > 0 ? static_cast<double>(floor.iterations) / floor.solves : 0.0,
+               Percentile(sorted, 0.50),
+               Percentile(sorted, 0.99),
+               sorted.empty() ? 0.0 : sorted.back());
   }
 
   std::vector<int> reference_states;
