@@ -50,29 +50,41 @@ Eigen::MatrixXd RandomSparseSpd(int n, uint32_t seed, Eigen::MatrixXi* pattern) 
   return a;
 }
 
+// A random sparse SPD system, dense and as the upper-triangle compressed columns SparseCholesky
+// takes.
+struct SpdSystem {
+  Eigen::MatrixXd dense;
+  std::vector<int> starts;
+  std::vector<int> rows;
+  std::vector<double> values;
+};
+
+SpdSystem RandomSystem(int n, uint32_t seed) {
+  SpdSystem system;
+  Eigen::MatrixXi pattern;
+  system.dense = RandomSparseSpd(n, seed, &pattern);
+  ToUpperColumns(system.dense, pattern, &system.starts, &system.rows, &system.values);
+  return system;
+}
+
 TEST_CASE("CHOLMOD solves a sparse SPD system like a dense Cholesky", "[sparse_cholesky]") {
   const uint32_t seed = GENERATE(1u, 2u, 3u);
   INFO("seed " << seed);
   constexpr int kSize = 60;
-  Eigen::MatrixXi pattern;
-  const Eigen::MatrixXd a = RandomSparseSpd(kSize, seed, &pattern);
-  std::vector<int> starts;
-  std::vector<int> rows;
-  std::vector<double> values;
-  ToUpperColumns(a, pattern, &starts, &rows, &values);
+  const SpdSystem spd = RandomSystem(kSize, seed);
 
   SparseCholesky cholesky;
-  cholesky.SetPattern(kSize, starts, rows);
+  cholesky.SetPattern(kSize, spd.starts, spd.rows);
   REQUIRE(cholesky.size() == kSize);
-  REQUIRE(cholesky.num_nonzeros() == static_cast<int>(values.size()));
-  std::copy(values.begin(), values.end(), cholesky.mutable_values());
+  REQUIRE(cholesky.num_nonzeros() == static_cast<int>(spd.values.size()));
+  std::copy(spd.values.begin(), spd.values.end(), cholesky.mutable_values());
   std::string message;
   REQUIRE(cholesky.Factorize(&message) == LinearSolverStatus::kSuccess);
 
   const Eigen::VectorXd b = Eigen::VectorXd::LinSpaced(kSize, -1.0, 2.0);
   Eigen::VectorXd x;
   REQUIRE(cholesky.Solve(b, &x));
-  const Eigen::VectorXd expected = a.llt().solve(b);
+  const Eigen::VectorXd expected = spd.dense.llt().solve(b);
   // Both solvers are backward stable on this well-conditioned matrix.
   CHECK((x - expected).lpNorm<Eigen::Infinity>() < 1e-12);
   CHECK(cholesky.factor_nonzeros() >= kSize);
@@ -80,21 +92,18 @@ TEST_CASE("CHOLMOD solves a sparse SPD system like a dense Cholesky", "[sparse_c
 
 TEST_CASE("New values with the same pattern reuse the symbolic analysis", "[sparse_cholesky]") {
   constexpr int kSize = 40;
-  Eigen::MatrixXi pattern;
-  const Eigen::MatrixXd a = RandomSparseSpd(kSize, 7, &pattern);
-  std::vector<int> starts;
-  std::vector<int> rows;
-  std::vector<double> values;
-  ToUpperColumns(a, pattern, &starts, &rows, &values);
+  const SpdSystem spd = RandomSystem(kSize, 7);
   SparseCholesky cholesky;
-  cholesky.SetPattern(kSize, starts, rows);
+  cholesky.SetPattern(kSize, spd.starts, spd.rows);
   for (int round = 1; round <= 3; ++round) {
     // Scaling keeps the pattern and changes the solution by the inverse factor.
-    for (size_t k = 0; k < values.size(); ++k) cholesky.mutable_values()[k] = round * values[k];
+    for (size_t k = 0; k < spd.values.size(); ++k) {
+      cholesky.mutable_values()[k] = round * spd.values[k];
+    }
     REQUIRE(cholesky.Factorize(nullptr) == LinearSolverStatus::kSuccess);
     Eigen::VectorXd x;
     REQUIRE(cholesky.Solve(Eigen::VectorXd::Ones(kSize), &x));
-    CHECK((a * x * round - Eigen::VectorXd::Ones(kSize)).norm() < 1e-12);
+    CHECK((spd.dense * x * round - Eigen::VectorXd::Ones(kSize)).norm() < 1e-12);
   }
   CHECK(cholesky.num_analyses() == 1);
   CHECK(cholesky.num_factorizations() == 3);
@@ -106,25 +115,20 @@ TEST_CASE("Permuting once per pattern gives CHOLMOD's factor bit for bit", "[spa
   const uint32_t seed = GENERATE(1u, 2u, 3u, 4u);
   INFO("seed " << seed);
   constexpr int kSize = 300;
-  Eigen::MatrixXi pattern;
-  const Eigen::MatrixXd a = RandomSparseSpd(kSize, seed, &pattern);
-  std::vector<int> starts;
-  std::vector<int> rows;
-  std::vector<double> values;
-  ToUpperColumns(a, pattern, &starts, &rows, &values);
+  const SpdSystem spd = RandomSystem(kSize, seed);
   SparseCholesky once(/*permute_once=*/true);
   SparseCholesky each_time(/*permute_once=*/false);
-  once.SetPattern(kSize, starts, rows);
-  each_time.SetPattern(kSize, starts, rows);
+  once.SetPattern(kSize, spd.starts, spd.rows);
+  each_time.SetPattern(kSize, spd.starts, spd.rows);
   std::mt19937 rng(seed);
   std::uniform_real_distribution<double> scale(0.5, 1.0);
   for (int round = 0; round < 3; ++round) {
     // Off-diagonal entries shrink by a random factor (the diagonal, last in each column, stays):
     // new values, still diagonally dominant.
     for (int c = 0; c < kSize; ++c) {
-      for (int k = starts[c]; k < starts[c + 1]; ++k) {
-        const bool diagonal = k == starts[c + 1] - 1;
-        const double v = diagonal ? values[k] : values[k] * scale(rng);
+      for (int k = spd.starts[c]; k < spd.starts[c + 1]; ++k) {
+        const bool diagonal = k == spd.starts[c + 1] - 1;
+        const double v = diagonal ? spd.values[k] : spd.values[k] * scale(rng);
         once.mutable_values()[k] = v;
         each_time.mutable_values()[k] = v;
       }
