@@ -251,11 +251,19 @@ struct Settings {
   int threads = 2;
   double budget_s = 600.0;
   bool floor = false;
+  bool require_finished = false;  // a run stopped by the budget fails the command (for tests)
+};
+
+// What the runs of every case showed, for the exit status.
+struct Verdict {
+  bool decisions_differ = false;  // a variant decided a loop otherwise than the reference
+  bool stopped = false;           // a run did not finish: nothing of it was compared
 };
 
 // The floor under any iRRR that decides like this one: every wrong group is judged by Algorithm 2
 // in a joint optimization from dead reckoning with the true loops that arrived before it (the
-// notes' start; warm starts lose most true loops, see README), so one such solve per group is
+// notes' start; warm starts are slower still, see README), and its edge residuals rank the
+// suspects, so it cannot be cut short: one such solve per group is
 // work that no speed-up preserving the decisions can skip. Solved one after the other with one
 // optimizer (its analysis reused where the pattern allows); returns their time and iterations.
 // Stops between solves once `budget_s` is spent (the figures then cover the solves that ran).
@@ -298,7 +306,7 @@ int RunCase(const Dataset& dataset,
             int count,
             const Settings& settings,
             std::string* table,
-            bool* decisions_differ) {
+            Verdict* verdict) {
   const std::string path = settings.shared + "/" + dataset.path;
   FileFormat format;
   int dimension = 0;
@@ -406,7 +414,8 @@ int RunCase(const Dataset& dataset,
     std::vector<double> sorted = r.step_ms;
     std::sort(sorted.begin(), sorted.end());
     const bool ran = r.poses > 0;  // finished, or stopped by the budget with figures
-    if (ran && same.rfind("NO", 0) == 0) *decisions_differ = true;
+    if (ran && same.rfind("NO", 0) == 0) verdict->decisions_differ = true;
+    if (!r.finished) verdict->stopped = true;
     const std::string total =
         !ran ? "failed"
         : r.finished
@@ -498,6 +507,9 @@ int Main(int argc, char** argv) {
       ->check(CLI::PositiveNumber)
       ->capture_default_str();
   app.add_option("--output", output, "also write the table (Markdown) here");
+  app.add_flag("--require-finished",
+               settings.require_finished,
+               "fail (exit 70) when a run does not finish, as well as when decisions differ");
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -506,6 +518,14 @@ int Main(int argc, char** argv) {
   }
   settings.datasets = SplitCommas(datasets);
   settings.variants = SplitCommas(variants);
+  for (const std::string& name : settings.variants) {
+    const std::vector<Variant> known = Variants(settings.threads);
+    if (std::none_of(
+            known.begin(), known.end(), [&](const Variant& v) { return v.name == name; })) {
+      fmt::print(stderr, "irrr-bench-speed: unknown variant \"{}\"\n", name);
+      return EX_USAGE;
+    }
+  }
   settings.counts.clear();
   for (const std::string& c : SplitCommas(counts)) settings.counts.push_back(std::stoi(c));
   for (OutlierMode m : {OutlierMode::kRandom,
@@ -521,7 +541,7 @@ int Main(int argc, char** argv) {
       "| batch solve MB | batch solve s | same decisions |\n"
       "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   fmt::print("{}", table);
-  bool decisions_differ = false;
+  Verdict verdict;
   for (const std::string& name : settings.datasets) {
     const auto it = std::find_if(
         Datasets().begin(), Datasets().end(), [&](const Dataset& d) { return d.name == name; });
@@ -537,9 +557,8 @@ int Main(int argc, char** argv) {
       return EX_NOINPUT;
     }
     for (int count : settings.counts) {
-      const int code = dimension == 2
-                           ? RunCase<Pose2>(*it, count, settings, &table, &decisions_differ)
-                           : RunCase<Pose3>(*it, count, settings, &table, &decisions_differ);
+      const int code = dimension == 2 ? RunCase<Pose2>(*it, count, settings, &table, &verdict)
+                                      : RunCase<Pose3>(*it, count, settings, &table, &verdict);
       if (code != EX_OK) return code;
     }
   }
@@ -551,8 +570,14 @@ int Main(int argc, char** argv) {
       return EX_CANTCREAT;
     }
   }
-  if (decisions_differ) {
+  if (verdict.decisions_differ) {
     fmt::print(stderr, "irrr-bench-speed: a speed-up changed decisions (rows marked NO)\n");
+    return EX_SOFTWARE;
+  }
+  if (verdict.stopped && settings.require_finished) {
+    fmt::print(stderr,
+               "irrr-bench-speed: a run did not finish (budget or failure), so its decisions were "
+               "not compared\n");
     return EX_SOFTWARE;
   }
   return EX_OK;
