@@ -81,6 +81,29 @@ std::vector<Variant> Variants(int threads) {
   return variants;
 }
 
+// The variants named in `names` (comma-separated, in Variants' order): all when empty, none for
+// "none" (with --floor, the floor alone). False, with the name, for a name that is not a variant.
+bool SelectVariants(const std::vector<std::string>& names,
+                    int threads,
+                    std::vector<Variant>* selected,
+                    std::string* unknown) {
+  const std::vector<Variant> all = Variants(threads);
+  selected->clear();
+  if (names.size() == 1 && names.front() == "none") return true;
+  for (const std::string& name : names) {
+    if (std::none_of(all.begin(), all.end(), [&](const Variant& v) { return v.name == name; })) {
+      *unknown = name;
+      return false;
+    }
+  }
+  for (const Variant& v : all) {
+    if (names.empty() || std::find(names.begin(), names.end(), v.name) != names.end()) {
+      selected->push_back(v);
+    }
+  }
+  return true;
+}
+
 double SecondsSince(std::chrono::steady_clock::time_point start) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 }
@@ -247,7 +270,7 @@ struct Settings {
   std::vector<std::string> datasets = {"manhattan", "city10000", "sphere2500"};
   std::vector<int> counts = {1000};
   OutlierOptions outliers;
-  std::vector<std::string> variants;  // empty: all
+  std::vector<Variant> variants;  // the variants to run, in Variants' order
   int threads = 2;
   double budget_s = 600.0;
   bool floor = false;
@@ -263,8 +286,8 @@ struct Verdict {
 // The floor under any iRRR that decides like this one: every wrong group is judged by Algorithm 2
 // in a joint optimization from dead reckoning with the true loops that arrived before it (the
 // notes' start; warm starts are slower still, see README), and its edge residuals rank the
-// suspects, so it cannot be cut short: one such solve per group is
-// work that no speed-up preserving the decisions can skip. Solved one after the other with one
+// suspects, so it cannot be cut short: one such solve per group is work that no speed-up
+// preserving the decisions can skip. Solved one after the other with one
 // optimizer (its analysis reused where the pattern allows); returns their time and iterations.
 // Stops between solves once `budget_s` is spent (the figures then cover the solves that ran).
 template <class Pose>
@@ -386,12 +409,7 @@ int RunCase(const Dataset& dataset,
 
   std::vector<int> reference_states;
   std::string reference_name;
-  for (const Variant& variant : Variants(settings.threads)) {
-    if (!settings.variants.empty() &&
-        std::find(settings.variants.begin(), settings.variants.end(), variant.name) ==
-            settings.variants.end()) {
-      continue;
-    }
+  for (const Variant& variant : settings.variants) {
     fmt::print(stderr, "  {} ...\n", variant.name);
     const double budget_s = settings.budget_s;
     // A step can outlast the budget by far (the budget is checked between steps).
@@ -490,10 +508,11 @@ int Main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--seed", settings.outliers.seed, "seed of the wrong loops")
       ->capture_default_str();
-  app.add_option("--variants",
-                 variants,
-                 "comma-separated subset of: all on, reuse_solves off, reuse_analysis off, "
-                 "local_problems off, lazy_lookahead off, 1 thread, warm_start on (default: all)");
+  app.add_option(
+      "--variants",
+      variants,
+      "comma-separated subset of: all on, reuse_solves off, reuse_analysis off, "
+      "local_problems off, lazy_lookahead off, 1 thread, warm_start on; or none (default: all)");
   app.add_flag("--floor",
                settings.floor,
                "also time one joint solve from dead reckoning per wrong group (the work no "
@@ -517,14 +536,10 @@ int Main(int argc, char** argv) {
     return code == 0 ? EX_OK : EX_USAGE;
   }
   settings.datasets = SplitCommas(datasets);
-  settings.variants = SplitCommas(variants);
-  for (const std::string& name : settings.variants) {
-    const std::vector<Variant> known = Variants(settings.threads);
-    if (std::none_of(
-            known.begin(), known.end(), [&](const Variant& v) { return v.name == name; })) {
-      fmt::print(stderr, "irrr-bench-speed: unknown variant \"{}\"\n", name);
-      return EX_USAGE;
-    }
+  if (std::string unknown;
+      !SelectVariants(SplitCommas(variants), settings.threads, &settings.variants, &unknown)) {
+    fmt::print(stderr, "irrr-bench-speed: unknown variant \"{}\"\n", unknown);
+    return EX_USAGE;
   }
   settings.counts.clear();
   for (const std::string& c : SplitCommas(counts)) settings.counts.push_back(std::stoi(c));
