@@ -242,6 +242,7 @@ OptimizerSummary Optimizer<Pose>::Solve(const PoseGraph<Pose>& graph,
   IRRR_CHECK(estimate != nullptr && static_cast<int>(estimate->size()) == graph.num_vertices());
 
   OptimizerSummary summary;
+  covariance_fixed_.clear();
   const int n = graph.num_vertices();
   const std::vector<char> fixed = GaugeAnchors(graph, active, &summary.num_components);
   for (int e = 0; e < graph.num_edges(); ++e) {
@@ -417,6 +418,47 @@ OptimizerSummary Optimizer<Pose>::Solve(const PoseGraph<Pose>& graph,
     if (EdgeIsActive(active, e)) summary.final_chi2 += summary.edge_chi2[e];
   }
   return summary;
+}
+
+template <class Pose>
+bool Optimizer<Pose>::FactorizeAt(const PoseGraph<Pose>& graph,
+                                  const std::vector<char>& active,
+                                  const std::vector<Pose>& estimate) {
+  IRRR_CHECK(static_cast<int>(active.size()) == graph.num_edges());
+  IRRR_CHECK(static_cast<int>(estimate.size()) == graph.num_vertices());
+  covariance_fixed_.clear();
+  if (graph.num_vertices() == 0) return false;
+  std::vector<char> fixed = GaugeAnchors(graph, active, nullptr);
+  PrepareLayout(graph, active);
+  Eigen::VectorXd gradient;
+  Linearize(graph, active, fixed, estimate, &gradient);
+  if (cholesky_.Factorize(nullptr) != LinearSolverStatus::kSuccess) return false;
+  covariance_fixed_ = std::move(fixed);
+  return true;
+}
+
+template <class Pose>
+bool Optimizer<Pose>::Covariance(const std::vector<int>& vertices, Eigen::MatrixXd* covariance) {
+  constexpr int d = Pose::kDim;
+  if (covariance_fixed_.empty()) return false;
+  const int m = static_cast<int>(vertices.size());
+  Eigen::MatrixXd unit = Eigen::MatrixXd::Zero(cholesky_.size(), d * m);
+  for (int k = 0; k < m; ++k) {
+    IRRR_CHECK(vertices[k] >= 0 && vertices[k] < static_cast<int>(covariance_fixed_.size()));
+    if (covariance_fixed_[vertices[k]]) continue;
+    for (int a = 0; a < d; ++a) unit(vertices[k] * d + a, k * d + a) = 1.0;
+  }
+  Eigen::MatrixXd columns;
+  if (!cholesky_.Solve(unit, &columns)) return false;
+  covariance->setZero(d * m, d * m);
+  for (int k = 0; k < m; ++k) {
+    if (covariance_fixed_[vertices[k]]) continue;
+    for (int j = 0; j < m; ++j) {
+      if (covariance_fixed_[vertices[j]]) continue;
+      covariance->block<d, d>(k * d, j * d) = columns.block<d, d>(vertices[k] * d, j * d);
+    }
+  }
+  return true;
 }
 
 template double EdgeChi2<Pose2>(const Edge<Pose2>&, const std::vector<Pose2>&);

@@ -89,6 +89,18 @@ class Optimizer {
 
   const OptimizerOptions& options() const { return options_; }
 
+  // Marginal covariances at a point (the inverse of J'WJ there, in the tangent of Pose::Retract;
+  // the information matrices as given, so a caller with a variance factor scales them itself).
+  // FactorizeAt linearizes the active edges at `estimate` and factorizes; Covariance then returns
+  // the joint covariance of `vertices` (d*m x d*m, in the order given) with a few sparse solves, a
+  // pose held fixed by the gauge having zero rows and columns. FactorizeAt returns false when J'WJ
+  // is not positive definite there; Covariance, when nothing is factorized. A Solve in between
+  // discards the factorization.
+  bool FactorizeAt(const PoseGraph<Pose>& graph,
+                   const std::vector<char>& active,
+                   const std::vector<Pose>& estimate);
+  bool Covariance(const std::vector<int>& vertices, Eigen::MatrixXd* covariance);
+
  private:
   // Sets the block pattern of J'WJ for the given active set; returns false if the previous
   // pattern (and with it the symbolic analysis) could be kept.
@@ -107,6 +119,7 @@ class Optimizer {
   std::vector<std::vector<int>> column_neighbors_;  // per vertex c: sorted vertices r < c joined
   std::vector<int> block_column_start_;             // first value index of each block column
   std::vector<int> diagonal_value_index_;           // value index of each scalar diagonal entry
+  std::vector<char> covariance_fixed_;  // gauge of the FactorizeAt factorization (empty: none)
 };
 
 // d^2 = r' Omega r of one edge at `estimate` (paper eq. 2).

@@ -281,19 +281,27 @@ LinearSolverStatus SparseCholesky::Factorize(std::string* message) {
 }
 
 bool SparseCholesky::Solve(const Eigen::VectorXd& b, Eigen::VectorXd* x) {
-  if (!impl_->factorized || b.size() != size()) return false;
-  // A dense header over b's storage: CHOLMOD reads it and allocates the solution itself.
-  // With a permuted matrix, b is permuted here and x back (what CHOLMOD does otherwise).
+  Eigen::MatrixXd solution;
+  if (!Solve(Eigen::MatrixXd(b), &solution)) return false;
+  *x = solution.col(0);
+  return true;
+}
+
+bool SparseCholesky::Solve(const Eigen::MatrixXd& b, Eigen::MatrixXd* x) {
+  if (!impl_->factorized || b.rows() != size() || b.cols() < 1) return false;
+  // A dense header over b's storage (column-major, as CHOLMOD's): CHOLMOD reads it and allocates
+  // the solution itself. With a permuted matrix, b's rows are permuted here and x's back (what
+  // CHOLMOD does otherwise).
   const std::vector<int>& permutation = impl_->permutation;
-  Eigen::VectorXd permuted_b;
+  Eigen::MatrixXd permuted_b;
   if (!permutation.empty()) {
-    permuted_b.resize(b.size());
-    for (Eigen::Index k = 0; k < b.size(); ++k) permuted_b[k] = b[permutation[k]];
+    permuted_b.resize(b.rows(), b.cols());
+    for (Eigen::Index k = 0; k < b.rows(); ++k) permuted_b.row(k) = b.row(permutation[k]);
   }
   cholmod_dense rhs{};
-  rhs.nrow = static_cast<size_t>(b.size());
-  rhs.ncol = 1;
-  rhs.nzmax = rhs.nrow;
+  rhs.nrow = static_cast<size_t>(b.rows());
+  rhs.ncol = static_cast<size_t>(b.cols());
+  rhs.nzmax = rhs.nrow * rhs.ncol;
   rhs.d = rhs.nrow;
   rhs.x = const_cast<double*>(permutation.empty() ? b.data() : permuted_b.data());
   rhs.z = nullptr;
@@ -305,12 +313,13 @@ bool SparseCholesky::Solve(const Eigen::VectorXd& b, Eigen::VectorXd* x) {
     solution = cholmod_solve(CHOLMOD_A, impl_->factor, &rhs, &impl_->common);
   }
   if (solution == nullptr) return false;
-  x->resize(b.size());
-  const double* values = static_cast<const double*>(solution->x);
+  x->resize(b.rows(), b.cols());
+  const Eigen::Map<const Eigen::MatrixXd> values(
+      static_cast<const double*>(solution->x), b.rows(), b.cols());
   if (permutation.empty()) {
-    std::copy_n(values, b.size(), x->data());
+    *x = values;
   } else {
-    for (Eigen::Index k = 0; k < b.size(); ++k) (*x)[permutation[k]] = values[k];
+    for (Eigen::Index k = 0; k < b.rows(); ++k) x->row(permutation[k]) = values.row(k);
   }
   cholmod_free_dense(&solution, &impl_->common);
   return true;

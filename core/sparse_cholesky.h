@@ -53,6 +53,8 @@ class SparseCholesky {
   // Solves A x = b with the last successful factorization. Returns false (x untouched) if there
   // is none or CHOLMOD fails.
   bool Solve(const Eigen::VectorXd& b, Eigen::VectorXd* x);
+  // The same for several right-hand sides at once (the columns of b).
+  bool Solve(const Eigen::MatrixXd& b, Eigen::MatrixXd* x);
 
   int num_analyses() const { return num_analyses_; }              // symbolic analyses so far
   int num_factorizations() const { return num_factorizations_; }  // numeric factorizations so far
