@@ -1,0 +1,98 @@
+#include "core/test_statistics.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include <Eigen/Cholesky>
+#include <boost/math/distributions/chi_squared.hpp>
+#include <boost/math/distributions/fisher_f.hpp>
+
+namespace irrr {
+
+double ChiSquareQuantile(double alpha, double dof) {
+  return boost::math::quantile(boost::math::chi_squared(dof), alpha);
+}
+
+double ChiSquareMedian(double dof) { return ChiSquareQuantile(0.5, dof); }
+
+double ScaledChiSquareThreshold(double alpha, double dof, double variance, double variance_dof) {
+  if (!std::isfinite(variance_dof)) return variance * ChiSquareQuantile(alpha, dof);
+  return variance * dof * boost::math::quantile(boost::math::fisher_f(dof, variance_dof), alpha);
+}
+
+double PooledVarianceFactor(const std::vector<RedundancySample>& samples) {
+  double chi2 = 0.0;
+  double dof = 0.0;
+  for (const RedundancySample& s : samples) {
+    chi2 += s.chi2;
+    dof += s.dof;
+  }
+  return dof > 0.0 ? chi2 / dof : std::numeric_limits<double>::quiet_NaN();
+}
+
+double RobustVarianceFactor(const std::vector<RedundancySample>& samples) {
+  std::vector<std::pair<double, double>> ratios;  // (chi2 / median, dof)
+  double total = 0.0;
+  for (const RedundancySample& s : samples) {
+    if (s.dof > 0.0 && std::isfinite(s.chi2)) {
+      ratios.push_back({s.chi2 / ChiSquareMedian(s.dof), s.dof});
+      total += s.dof;
+    }
+  }
+  if (ratios.empty()) return std::numeric_limits<double>::quiet_NaN();
+  std::sort(ratios.begin(), ratios.end());
+  // The weighted median: the ratio at which half the degrees of freedom lie below, halfway
+  // between two samples where the half falls exactly between them.
+  double below = 0.0;
+  for (size_t k = 0; k < ratios.size(); ++k) {
+    below += ratios[k].second;
+    if (below > 0.5 * total) return ratios[k].first;
+    if (below == 0.5 * total) return 0.5 * (ratios[k].first + ratios[k + 1].first);
+  }
+  return ratios.back().first;
+}
+
+template <class Pose>
+double LinearizedChi2Increase(const std::vector<const Edge<Pose>*>& edges,
+                              const std::vector<Pose>& estimate,
+                              const std::vector<int>& vertices,
+                              const Eigen::MatrixXd& covariance) {
+  constexpr int d = Pose::kDim;
+  const int n = static_cast<int>(edges.size());
+  const int m = static_cast<int>(vertices.size());
+  IRRR_CHECK(covariance.rows() == d * m && covariance.cols() == d * m);
+  auto column_of = [&vertices](int v) {
+    const auto it = std::find(vertices.begin(), vertices.end(), v);
+    IRRR_CHECK(it != vertices.end());
+    return static_cast<int>(it - vertices.begin()) * d;
+  };
+  Eigen::VectorXd r(d * n);
+  Eigen::MatrixXd J = Eigen::MatrixXd::Zero(d * n, d * m);
+  Eigen::MatrixXd S = Eigen::MatrixXd::Zero(d * n, d * n);
+  typename Pose::Matrix J_from;
+  typename Pose::Matrix J_to;
+  for (int k = 0; k < n; ++k) {
+    const Edge<Pose>& edge = *edges[k];
+    r.segment<d>(k * d) = RelativePoseResidual<Pose>(
+        edge.measurement, estimate[edge.from], estimate[edge.to], &J_from, &J_to);
+    J.block<d, d>(k * d, column_of(edge.from)) += J_from;
+    J.block<d, d>(k * d, column_of(edge.to)) += J_to;
+    S.block<d, d>(k * d, k * d) = edge.information.inverse();
+  }
+  S += J * covariance * J.transpose();
+  const Eigen::LLT<Eigen::MatrixXd> llt(0.5 * (S + S.transpose()));
+  if (llt.info() != Eigen::Success) return std::numeric_limits<double>::quiet_NaN();
+  return r.dot(llt.solve(r));
+}
+
+template double LinearizedChi2Increase<Pose2>(const std::vector<const Edge<Pose2>*>&,
+                                              const std::vector<Pose2>&,
+                                              const std::vector<int>&,
+                                              const Eigen::MatrixXd&);
+template double LinearizedChi2Increase<Pose3>(const std::vector<const Edge<Pose3>*>&,
+                                              const std::vector<Pose3>&,
+                                              const std::vector<int>&,
+                                              const Eigen::MatrixXd&);
+
+}  // namespace irrr

@@ -1,0 +1,67 @@
+#ifndef IRRR_CORE_TEST_STATISTICS_H_
+#define IRRR_CORE_TEST_STATISTICS_H_
+
+// The statistics iRRR's tests compare with chi-square quantiles (algorithm-notes, "Tests" and
+// "Beyond the paper"):
+//  - chi-square quantiles and medians (Boost.Math);
+//  - the variance factor of the information matrices, estimated from the data's redundancy: how
+//    many times larger the residuals' real covariance is than the information matrices claim
+//    (1: as given). Public datasets are often far off (Manhattan about 0.02, so every test with
+//    the information as given is 50 times too lenient);
+//  - the linearized chi2 increase of a set of links at an optimum: their residuals against
+//    S = J Sigma J' + Omega^-1, with Sigma the marginal covariance of their end poses. On a
+//    linear-Gaussian problem it equals the chi2 increase of the optimum exactly; on a pose graph
+//    it costs a few sparse solves instead of a nonlinear optimization.
+
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "core/pose_graph.h"
+
+namespace irrr {
+
+// The value below which a chi-square variable with `dof` degrees of freedom falls with
+// probability `alpha`.
+double ChiSquareQuantile(double alpha, double dof);
+// Its median (ChiSquareQuantile(0.5, dof)).
+double ChiSquareMedian(double dof);
+
+// The threshold of a test whose statistic is a chi2 over `dof` degrees of freedom divided by an
+// estimated variance factor: variance * dof * F(alpha; dof, variance_dof), the F distribution's
+// quantile, when the factor is known with `variance_dof` degrees of freedom; variance *
+// ChiSquareQuantile(alpha, dof) when it is known exactly (variance_dof infinite). The F quantile
+// allows for the factor's own uncertainty, which dominates for large dof: a cluster of 600 links
+// has a chi2 quantile only 10% above its mean, less than the factor varies along a trajectory.
+double ScaledChiSquareThreshold(double alpha, double dof, double variance, double variance_dof);
+
+// One piece of redundancy: a chi2 at an optimum and its degrees of freedom (residual rows minus
+// free parameters). Under a variance factor s, chi2 ~ s * chi-square(dof).
+struct RedundancySample {
+  double chi2 = 0.0;
+  double dof = 0.0;
+};
+
+// Estimates of s from redundancy (NaN when there is none).
+//  - Pooled: sum of chi2 over sum of dof (unbiased; the estimate when the samples are clean).
+//  - Robust: the median of chi2 / ChiSquareMedian(dof) over the samples, each weighted by its
+//    dof, so that samples holding less than half the redundancy (wrong links clustered by
+//    chance) cannot set it.
+double PooledVarianceFactor(const std::vector<RedundancySample>& samples);
+double RobustVarianceFactor(const std::vector<RedundancySample>& samples);
+
+// The linearized chi2 increase of adding `edges` to a least-squares problem whose optimum is
+// `estimate`: r' S^-1 r with r the stacked residuals, S = J Sigma J' + blockdiag(Omega^-1), J the
+// residuals' Jacobians with respect to the poses `vertices` and Sigma their joint covariance
+// (d*m x d*m in the order of `vertices`, as Optimizer::Covariance returns it). Every endpoint of
+// `edges` must be in `vertices`. The information is taken as given: divide by a variance factor
+// to test. Returns NaN when S is not positive definite.
+template <class Pose>
+double LinearizedChi2Increase(const std::vector<const Edge<Pose>*>& edges,
+                              const std::vector<Pose>& estimate,
+                              const std::vector<int>& vertices,
+                              const Eigen::MatrixXd& covariance);
+
+}  // namespace irrr
+
+#endif  // IRRR_CORE_TEST_STATISTICS_H_
