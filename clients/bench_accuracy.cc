@@ -144,17 +144,25 @@ struct Method {
   bool incremental = true;  // iRRR (Irrr driven step by step) or batch RRR (RunBatchRrr)
   GraphDegreesOfFreedom dof = GraphDegreesOfFreedom::kResidualRows;
   bool paper_faithful = false;
+  double alpha = 0.0;             // > 0: overrides the preset's
+  double variance_factor = -1.0;  // >= 0: overrides the default (0: estimated)
+  bool cold = false;              // the default's tests on the cold engine
 };
 
 std::string MethodName(const Method& m) { return m.incremental ? "irrr" : "rrr"; }
 std::string DofName(GraphDegreesOfFreedom dof) {
   return dof == GraphDegreesOfFreedom::kResidualRows ? "residual_rows" : "exact";
 }
-std::string VariantName(const Method& m) { return m.paper_faithful ? "paper" : "default"; }
+std::string VariantName(const Method& m) {
+  return m.paper_faithful ? "paper" : m.cold ? "cold" : "default";
+}
 
 IrrrOptions OptionsFor(const Method& m) {
   IrrrOptions options = m.paper_faithful ? IrrrOptions::PaperFaithful() : IrrrOptions();
   options.graph_dof = m.dof;
+  if (m.cold) options.engine = IrrrEngine::kCold;
+  if (m.alpha > 0.0) options.alpha = m.alpha;
+  if (m.variance_factor >= 0.0) options.variance_factor = m.variance_factor;
   return options;
 }
 
@@ -735,9 +743,15 @@ int main(int argc, char** argv) {
   auto* paper = app.add_flag(
       "--paper-faithful", paper_faithful, "the paper's tests as written (same as --variant paper)");
   app.add_option("--variant", variant, "default (strengthened tests), paper, or both")
-      ->check(CLI::IsMember({"default", "paper", "both"}))
+      ->check(CLI::IsMember({"default", "paper", "both", "cold"}))
       ->excludes(paper)
       ->capture_default_str();
+  double alpha = 0.0;
+  double variance_factor = -1.0;
+  app.add_option("--alpha", alpha, "confidence of every test (default: the variant's)");
+  app.add_option("--variance-factor",
+                 variance_factor,
+                 "fixed variance factor of the information (0: estimated; default: the variant's)");
   app.add_option("--seed", outliers.seed, "seed of the synthetic outliers")->capture_default_str();
   app.add_option("--group-size", outliers.group_size, "links per group of grouped outliers")
       ->check(CLI::PositiveNumber)
@@ -771,7 +785,7 @@ int main(int argc, char** argv) {
   if (graph_dof != "residual_rows") dofs.push_back(irrr::GraphDegreesOfFreedom::kExact);
   std::vector<bool> variants;
   if (variant != "paper") variants.push_back(false);
-  if (variant != "default") variants.push_back(true);
+  if (variant == "paper" || variant == "both") variants.push_back(true);
   std::stringstream method_names(methods_option);
   std::string name;
   while (std::getline(method_names, name, ',')) {
@@ -780,7 +794,10 @@ int main(int argc, char** argv) {
       return EX_USAGE;
     }
     for (irrr::GraphDegreesOfFreedom dof : dofs) {
-      for (bool p : variants) settings.methods.push_back({name == "irrr", dof, p});
+      for (bool p : variants) {
+        settings.methods.push_back(
+            {name == "irrr", dof, p, alpha, variance_factor, !p && variant == "cold"});
+      }
     }
   }
   if (settings.methods.empty()) {

@@ -27,7 +27,9 @@ void VisitFields(OptimizerOptions& options, Visitor& visit) {
 
 template <class Visitor>
 void VisitFields(IrrrOptions& options, Visitor& visit) {
+  visit("engine", options.engine);
   visit("alpha", options.alpha);
+  visit("variance_factor", options.variance_factor);
   visit("cluster_gap", options.cluster_gap);
   visit("graph_dof", options.graph_dof);
   visit("require_each_cluster_consistent", options.require_each_cluster_consistent);
@@ -108,6 +110,14 @@ void VisitFields(DaemonOptions& options, Visitor& visit) {
 
 template <class Enum>
 using EnumNames = std::vector<std::pair<Enum, const char*>>;
+
+const EnumNames<IrrrEngine>& NamesOf(IrrrEngine) {
+  static const EnumNames<IrrrEngine> names = {
+      {IrrrEngine::kWarm, "warm"},
+      {IrrrEngine::kCold, "cold"},
+  };
+  return names;
+}
 
 const EnumNames<GraphDegreesOfFreedom>& NamesOf(GraphDegreesOfFreedom) {
   static const EnumNames<GraphDegreesOfFreedom> names = {

@@ -7,9 +7,7 @@
 //
 //   {
 //     "irrr": {
-//       "alpha": 0.95, "cluster_gap": 50, "graph_dof": "residual_rows",
-//       "require_each_cluster_consistent": true, "prune_failing_clusters": true,
-//       "elimination_lookahead": 3,
+//       "engine": "warm", "alpha": 0.999, "variance_factor": 0, "cluster_gap": 50,
 //       "optimizer": {"algorithm": "gauss_newton", "max_iterations": 100, ...}
 //     }
 //   }

@@ -29,6 +29,7 @@
 #include "core/optimizer.h"
 #include "core/pose_graph.h"
 #include "core/status.h"
+#include "core/test_statistics.h"
 
 namespace irrr {
 
@@ -38,8 +39,27 @@ enum class GraphDegreesOfFreedom {
   kExact,         // residual rows minus free state dimensions
 };
 
+// Which decision engine judges the clusters.
+enum class IrrrEngine {
+  // The default: every check on the component's good-set optimum, kept up to date warm, with a
+  // linearized screen before any nonlinear solve and every threshold scaled by the estimated
+  // variance factor (core/warm_engine.h).
+  kWarm,
+  // Every check from dead reckoning, as the reference code (the paper-faithful preset, and the
+  // strengthened cold tests of the "beyond the paper" options below).
+  kCold,
+};
+
 struct IrrrOptions {
-  double alpha = 0.95;        // confidence of every chi-square test, in (0, 1)
+  IrrrEngine engine = IrrrEngine::kWarm;
+  // Confidence of every chi-square test, in (0, 1). 0.999 by default: with the variance factor
+  // estimated, a true cluster fails a test at 0.95 one time in twenty (a recall of about 0.7 on
+  // Manhattan), while wrong ones stand far above either threshold. The paper-faithful preset: 0.95.
+  double alpha = 0.999;
+  // Warm engine: the variance factor of the information matrices (the residuals' real covariance
+  // over the one the information claims). 0: estimated from the data's redundancy; a positive
+  // value fixes it (1: trust the information as given).
+  double variance_factor = 0.0;
   double cluster_gap = 50.0;  // t_g of eq. (6), in stamp units (poses for files, seconds live)
   GraphDegreesOfFreedom graph_dof = GraphDegreesOfFreedom::kResidualRows;
   // Beyond the paper (algorithm-notes): the joint test of Algorithm 2 also requires every tested
@@ -141,6 +161,12 @@ struct IrrrStepState {
     bool in_good = false;
     bool in_reject = false;
     std::vector<int> opponents;  // clusters eliminated while this good one was inconsistent too
+    // Warm engine: Algorithm 1's redundancy (for the variance factor), the variance factor the
+    // cluster was accepted at (for Reversing), and whether it has closed (for waiting ones).
+    double redundancy_chi2 = 0.0;
+    double redundancy_dof = 0.0;
+    double accepted_variance = 0.0;
+    bool closed = false;
   };
   std::vector<LoopDecision> decisions;  // per graph edge
   std::vector<Pose> estimate;           // per vertex
@@ -158,6 +184,8 @@ struct StepResult {
   int solves = 0;                  // optimizations run
   int iterations = 0;              // their iterations (each one linearization and factorization)
   OptimizerSummary final_summary;  // of the optimization with the good set
+  double variance_factor = 1.0;    // the variance factor the step's tests used
+  int reversals = 0;               // challenges that reversed good clusters (warm engine)
 };
 
 template <class Pose>
@@ -283,10 +311,6 @@ std::vector<LoopDecision> RunIncrementalIrrr(const PoseGraph<Pose>& graph,
                                              std::vector<StepResult>* steps,
                                              const ParallelFor& parallel_for = {},
                                              int workers = 1);
-
-// chi2 quantile: the value below which a chi-square variable with `dof` degrees of freedom falls
-// with probability `alpha` (Boost.Math).
-double ChiSquareQuantile(double alpha, double dof);
 
 extern template class Irrr<Pose2>;
 extern template class Irrr<Pose3>;

@@ -12,7 +12,7 @@
 namespace irrr {
 namespace {
 
-constexpr char kMagic[8] = {'I', 'R', 'R', 'R', 'S', 'N', 'P', '1'};
+constexpr char kMagic[8] = {'I', 'R', 'R', 'R', 'S', 'N', 'P', '2'};
 constexpr size_t kHeader = sizeof kMagic + 8;  // magic, length, CRC
 constexpr uint32_t kMaxBody = 1u << 31;
 
@@ -103,8 +103,11 @@ void SnapshotWriter::StepState(const IrrrStepState<Pose>& state) {
     Ints(c.links);
     I64(c.session_a);
     I64(c.session_b);
-    I64((c.in_r ? 1 : 0) | (c.in_good ? 2 : 0) | (c.in_reject ? 4 : 0));
+    I64((c.in_r ? 1 : 0) | (c.in_good ? 2 : 0) | (c.in_reject ? 4 : 0) | (c.closed ? 8 : 0));
     Ints(c.opponents);
+    F64(c.redundancy_chi2);
+    F64(c.redundancy_dof);
+    F64(c.accepted_variance);
   }
   Ints(state.cluster_of);
   I64(state.steps);
@@ -211,14 +214,16 @@ bool SnapshotReader::StepState(IrrrStepState<Pose>* state) {
   for (Pose& pose : state->estimate) {
     if (!PoseValue(&pose)) return false;
   }
-  if (!Count(6 * 8, &n)) return false;
+  if (!Count(9 * 8, &n)) return false;
   state->clusters.resize(n);
   for (auto& c : state->clusters) {
     int64_t flags = 0;
     if (!Ints(&c.links) || !Int(&c.session_a) || !Int(&c.session_b) || !I64(&flags) ||
-        !Ints(&c.opponents)) {
+        !Ints(&c.opponents) || !F64(&c.redundancy_chi2) || !F64(&c.redundancy_dof) ||
+        !F64(&c.accepted_variance)) {
       return false;
     }
+    c.closed = (flags & 8) != 0;
     c.in_r = (flags & 1) != 0;
     c.in_good = (flags & 2) != 0;
     c.in_reject = (flags & 4) != 0;
@@ -278,7 +283,7 @@ Status ReadSnapshotFile(const std::string& path, std::vector<uint8_t>* body, boo
   }
   close(fd);
   if (data.size() < kHeader || std::memcmp(data.data(), kMagic, sizeof kMagic) != 0) {
-    return Status::Error(path + ": not an irrrd snapshot (it does not start with IRRRSNP1)");
+    return Status::Error(path + ": not an irrrd snapshot (it does not start with IRRRSNP2)");
   }
   const uint32_t length = GetU32(&data[sizeof kMagic]);
   const uint32_t crc = GetU32(&data[sizeof kMagic + 4]);

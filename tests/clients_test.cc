@@ -88,7 +88,9 @@ TEST_CASE("config/irrrd.json writes out every default of IrrrOptions", "[config]
 
 TEST_CASE("Every key of the irrr section is read into its field", "[config]") {
   const json section = {
+      {"engine", "cold"},
       {"alpha", 0.99},
+      {"variance_factor", 0.5},
       {"cluster_gap", 12.5},
       {"graph_dof", "exact"},
       {"require_each_cluster_consistent", false},
@@ -118,7 +120,9 @@ TEST_CASE("Every key of the irrr section is read into its field", "[config]") {
   const Status status = ParseIrrrOptions(section, &options);
   INFO(status.message());
   REQUIRE(status.ok());
+  CHECK(options.engine == IrrrEngine::kCold);
   CHECK(options.alpha == 0.99);
+  CHECK(options.variance_factor == 0.5);
   CHECK(options.cluster_gap == 12.5);
   CHECK(options.graph_dof == GraphDegreesOfFreedom::kExact);
   CHECK_FALSE(options.require_each_cluster_consistent);

@@ -221,7 +221,9 @@ TEMPLATE_TEST_CASE(
   const Corrupted<TestType> corrupted = MakeCorrupted<TestType>(synthetic, outliers);
   const PoseGraph<TestType>& graph = corrupted.graph;
   const std::vector<ArrivalEvent> events = ArrivalOrder(graph);
-  const IrrrOptions options = SyntheticIrrrOptions();
+  IrrrOptions options = SyntheticIrrrOptions();
+  options.engine = GENERATE(IrrrEngine::kWarm, IrrrEngine::kCold);
+  INFO((options.engine == IrrrEngine::kWarm ? "warm" : "cold") << " engine");
   auto run_steps = [](Irrr<TestType>* irrr) {
     while (irrr->HasPendingStep()) irrr->RunStep();
   };
@@ -256,10 +258,21 @@ TEMPLATE_TEST_CASE(
   restored.Flush();
   run_steps(&restored);
   CheckSameIrrr(original, restored);
-  // The case exercises what the state must carry: clusters split off and decisions that are not
-  // just acceptances.
+  // The case exercises what the state must carry: decisions that are not just acceptances;
+  // clusters split off (cold engine); the redundancy and acceptance variance factors (warm).
   const IrrrStepState<TestType> state = original.StepState();
-  CHECK(state.clusters.size() > state.cluster_of.size());
+  if (options.engine == IrrrEngine::kCold) {
+    CHECK(state.clusters.size() > state.cluster_of.size());
+  } else {
+    int with_redundancy = 0;
+    int accepted_at = 0;
+    for (const auto& cluster : state.clusters) {
+      with_redundancy += cluster.redundancy_dof > 0.0 ? 1 : 0;
+      accepted_at += cluster.accepted_variance > 0.0 ? 1 : 0;
+    }
+    CHECK(with_redundancy > 0);
+    CHECK(accepted_at > 0);
+  }
   int rejected = 0;
   for (const LoopDecision& d : state.decisions) {
     rejected += d.state != LoopState::kAccepted && d.state != LoopState::kPending ? 1 : 0;

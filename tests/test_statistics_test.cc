@@ -1,0 +1,147 @@
+#include "core/test_statistics.h"
+
+#include <cmath>
+#include <limits>
+#include <vector>
+
+#include <catch2/catch.hpp>
+
+#include "core/irrr.h"
+#include "core/optimizer.h"
+#include "tests/synthetic_graph.h"
+
+namespace irrr {
+namespace {
+
+using testing::MakeSyntheticGraph;
+using testing::SyntheticOptions;
+
+constexpr double kKnown = std::numeric_limits<double>::infinity();
+
+TEST_CASE("A scaled threshold is the chi-square quantile for a known factor, the F one otherwise",
+          "[statistics]") {
+  // chi2(0.95, 3) = 7.8147 and F(0.95; 3, 50) = 2.7900 (NIST/SEMATECH tables).
+  CHECK(ScaledChiSquareThreshold(0.95, 3, 1.0, kKnown) == Approx(7.8147).margin(5e-5));
+  CHECK(ScaledChiSquareThreshold(0.95, 3, 2.0, kKnown) == Approx(2.0 * 7.8147).margin(1e-4));
+  CHECK(ScaledChiSquareThreshold(0.95, 3, 1.0, 50.0) == Approx(3.0 * 2.7900).margin(1e-3));
+  // The F threshold allows for the factor's uncertainty, and tends to the chi-square one as the
+  // factor's degrees of freedom grow.
+  for (double dof : {3.0, 30.0, 3000.0}) {
+    const double chi2 = ScaledChiSquareThreshold(0.999, dof, 1.0, kKnown);
+    CHECK(ScaledChiSquareThreshold(0.999, dof, 1.0, 50.0) > chi2);
+    CHECK(ScaledChiSquareThreshold(0.999, dof, 1.0, 1e9) == Approx(chi2).epsilon(1e-3));
+  }
+  CHECK(ChiSquareMedian(3) == Approx(2.3660).margin(5e-5));
+}
+
+TEST_CASE("The robust variance factor is the dof-weighted median, the pooled one the ratio of sums",
+          "[statistics]") {
+  // Samples exactly at their median under a factor of 0.02: every estimate is 0.02.
+  std::vector<RedundancySample> samples;
+  for (double dof : {3.0, 9.0, 60.0, 300.0}) samples.push_back({0.02 * ChiSquareMedian(dof), dof});
+  CHECK(RobustVarianceFactor(samples) == Approx(0.02).epsilon(1e-12));
+  double chi2 = 0.0;
+  double dof = 0.0;
+  for (const RedundancySample& s : samples) {
+    chi2 += s.chi2;
+    dof += s.dof;
+  }
+  CHECK(PooledVarianceFactor(samples) == Approx(chi2 / dof).epsilon(1e-12));
+  // Wrong clusters holding less than half the redundancy cannot move the robust estimate, however
+  // inconsistent; the pooled one follows them.
+  samples.push_back({1e6, 100.0});
+  samples.push_back({1e7, 200.0});
+  CHECK(RobustVarianceFactor(samples) == Approx(0.02).epsilon(1e-12));
+  CHECK(PooledVarianceFactor(samples) > 1e4);
+  // A sample without redundancy carries none; no sample: NaN.
+  CHECK(std::isnan(RobustVarianceFactor({{1.0, 0.0}})));
+  CHECK(std::isnan(PooledVarianceFactor({})));
+}
+
+// The good set: odometry and every loop but the last; the tested link: the last loop.
+template <class Pose>
+struct Increase {
+  double linearized = 0.0;
+  double exact = 0.0;
+};
+
+template <class Pose>
+Increase<Pose> LinkIncrease(const PoseGraph<Pose>& graph) {
+  int tested = -1;
+  for (int e = 0; e < graph.num_edges(); ++e) {
+    if (graph.edge(e).kind == EdgeKind::kLoop) tested = e;
+  }
+  REQUIRE(tested >= 0);
+  std::vector<char> good(graph.num_edges(), 1);
+  good[tested] = 0;
+  std::vector<Pose> x = graph.initial_estimate();
+  Optimizer<Pose> optimizer;
+  const OptimizerSummary base = optimizer.Solve(graph, good, &x);
+  REQUIRE(base.termination == TerminationType::kConvergence);
+  const Edge<Pose>& edge = graph.edge(tested);
+  Eigen::MatrixXd covariance;
+  REQUIRE(optimizer.FactorizeAt(graph, good, x));
+  REQUIRE(optimizer.Covariance({edge.from, edge.to}, &covariance));
+  Increase<Pose> out;
+  out.linearized = LinearizedChi2Increase<Pose>({&edge}, x, {edge.from, edge.to}, covariance);
+  const OptimizerSummary joint =
+      optimizer.Solve(graph, std::vector<char>(graph.num_edges(), 1), &x);
+  REQUIRE(joint.termination == TerminationType::kConvergence);
+  out.exact = joint.final_chi2 - base.final_chi2;
+  return out;
+}
+
+TEMPLATE_TEST_CASE("The linearized screen equals the chi2 increase on a linear-Gaussian graph",
+                   "[statistics]",
+                   Pose2,
+                   Pose3) {
+  // Rotations known to 1e-7 rad and translations noisy: the problem is linear in the
+  // translations to within rounding, and the screen's statistic is the exact chi2 increase.
+  SyntheticOptions linear;
+  linear.num_poses = 120;
+  linear.translation_sigma_m = 0.05;
+  linear.rotation_sigma_rad = 1e-7;
+  linear.loop_probability = 0.3;
+  linear.seed = 4;
+  const Increase<TestType> near = LinkIncrease(MakeSyntheticGraph<TestType>(linear).graph);
+  INFO("linearized " << near.linearized << ", exact " << near.exact);
+  CHECK(near.exact > 0.1);
+  CHECK(near.linearized == Approx(near.exact).epsilon(1e-5));
+
+  // With rotation noise of 0.01 rad it is an approximation, still within a few percent.
+  SyntheticOptions noisy = linear;
+  noisy.rotation_sigma_rad = 0.01;
+  const Increase<TestType> far = LinkIncrease(MakeSyntheticGraph<TestType>(noisy).graph);
+  INFO("linearized " << far.linearized << ", exact " << far.exact);
+  CHECK(far.linearized == Approx(far.exact).epsilon(0.05));
+}
+
+TEMPLATE_TEST_CASE("The warm engine recovers a variance factor of 0.02 and of 50 within 10%",
+                   "[statistics][irrr]",
+                   Pose2,
+                   Pose3) {
+  const double factor = GENERATE(0.02, 50.0);
+  INFO("variance factor " << factor);
+  SyntheticOptions options;
+  options.num_poses = 400;
+  options.translation_sigma_m = 0.05;
+  options.rotation_sigma_rad = 0.01;
+  options.loop_probability = 0.5;
+  // The information as the inverse noise covariance times the factor: chi2 values, and so the
+  // factor the engine reads from them, scale with it.
+  options.information_scale = factor;
+  options.seed = 11;
+  const auto synthetic = MakeSyntheticGraph<TestType>(options);
+  IrrrOptions irrr;
+  irrr.cluster_gap = 10.0;
+  std::vector<StepResult> steps;
+  const auto decisions = RunIncrementalIrrr<TestType>(synthetic.graph, irrr, nullptr, &steps);
+  REQUIRE(!steps.empty());
+  CHECK(steps.back().variance_factor == Approx(factor).epsilon(0.10));
+  int accepted = 0;
+  for (int e : synthetic.loop_edges) accepted += decisions[e].state == LoopState::kAccepted;
+  CHECK(accepted >= 0.99 * static_cast<double>(synthetic.loop_edges.size()));
+}
+
+}  // namespace
+}  // namespace irrr
