@@ -260,7 +260,11 @@ int Run(const BatchArguments& args, const IrrrOptions& options, FileFormat forma
         count[LoopState::kReversed],
         count[LoopState::kPending],
         num_clusters,
-        args.method == "irrr" ? fmt::format("{} steps, ", steps.size()) : std::string(),
+        args.method == "irrr" && !steps.empty()
+            ? fmt::format(
+                  "{} steps, variance factor {:.4g}, ", steps.size(), steps.back().variance_factor)
+        : args.method == "irrr" ? std::string("0 steps, ")
+                                : std::string(),
         num_components,
         chi2,
         decide_s);

@@ -367,7 +367,8 @@ int Publish(const Arguments& args,
   fmt::print(
       "daemon    took all {} messages (inputs and progress requests) from {} sender(s) ({} "
       "rejected, {} duplicates ignored), {} "
-      "steps, {} loops accepted, {} rejected or reversed, {} component(s), latest solution {}\n",
+      "steps, {} loops accepted, {} rejected or reversed, {} component(s), latest solution {}, "
+      "variance factor {:.4g}\n",
       watcher.Total(*fleet, &sender_count_t::next_seq),
       fleet->names().size(),
       watcher.Total(*fleet, &sender_count_t::rejected),
@@ -376,7 +377,8 @@ int Publish(const Arguments& args,
       st.n_accepted,
       st.n_rejected,
       st.n_components,
-      st.solution_id);
+      st.solution_id,
+      st.variance_factor);
   return EX_OK;
 }
 

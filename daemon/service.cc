@@ -400,7 +400,11 @@ struct Service::State {
 
   // Counters for status_t (both threads).
   mutable std::mutex stats_mutex;
-  status_t stats{};
+  status_t stats = [] {
+    status_t s{};
+    s.variance_factor = 1.0f;  // before any step: the information as given
+    return s;
+  }();
   std::map<std::string, sender_count_t> senders;
 
   // Outgoing sequence number (one counter over all channels, as header_t says).
@@ -1117,8 +1121,8 @@ struct Service::State {
         replaying ? spdlog::level::debug : spdlog::level::info,
         "step {} (cluster {}): {} decision(s) changed, {} accepted and {} rejected or reversed in "
         "all; {} "
-        "session(s) re-estimated; decided in {:.1f} ms ({} solves), published {:.1f} ms after the "
-        "cluster closed",
+        "session(s) re-estimated; decided in {:.1f} ms ({} solves, variance factor {:.4g}), "
+        "published {:.1f} ms after the cluster closed",
         step.step,
         step.cluster,
         state_changes,
@@ -1127,10 +1131,12 @@ struct Service::State {
         c.n_sessions,
         decide_ms,
         step.solves,
+        step.variance_factor,
         latency_ms);
     std::lock_guard<std::mutex> lock(stats_mutex);
     stats.solution_id = c.solution_id;
     stats.last_step_latency_ms = static_cast<float>(latency_ms);
+    stats.variance_factor = static_cast<float>(step.variance_factor);
     ++stats.n_steps;
   }
 
