@@ -185,6 +185,7 @@ struct StepResult {
   int iterations = 0;              // their iterations (each one linearization and factorization)
   OptimizerSummary final_summary;  // of the optimization with the good set
   double variance_factor = 1.0;    // the variance factor the step's tests used
+  double variance_estimate = 1.0;  // the one the data gave (warm engine; tests use at most 1)
   int reversals = 0;               // challenges that reversed good clusters (warm engine)
 };
 

@@ -47,11 +47,10 @@ class WarmEngine {
       : c_(*consensus), x_(*estimate), optimizer_(optimizer) {}
 
   // Judges the closed cluster k (-1: none, only what waits) against the good set of the
-  // components it touches. While no
-  // variance factor is known (none fixed, and no cluster of two or more links seen yet), a
-  // cluster waits (kPending): no test can tell a wrong link from a true one without the noise
-  // level. The first cluster that gives one starts the judging of everything waiting, largest
-  // first (most evidence first), then in closing order.
+  // components it touches. While no variance factor is known (none fixed, and too little
+  // redundancy seen yet: CurrentScale), a cluster waits (kPending): no test can tell a wrong link
+  // from a true one without the noise level. The step that makes one known judges everything
+  // waiting, largest first (most evidence first), then in closing order.
   void Step(int k, StepResult* result) {
     const int solves_before = c_.solves;
     const int iterations_before = c_.iterations;
@@ -69,6 +68,7 @@ class WarmEngine {
       }
       if (!scale_known_) {
         result->variance_factor = variance_;
+        result->variance_estimate = estimate_;
         result->solves += c_.solves - solves_before;
         result->iterations += c_.iterations - iterations_before;
         return;  // waits
@@ -86,6 +86,7 @@ class WarmEngine {
     result->solves += c_.solves - solves_before;
     result->iterations += c_.iterations - iterations_before;
     result->variance_factor = variance_;
+    result->variance_estimate = estimate_;
   }
 
   // Reversing: a good cluster accepted under a variance factor more than kRevalidateRatio times
@@ -266,40 +267,45 @@ class WarmEngine {
     const Scale scale = CurrentScale();
     scale_known_ = scale.known;
     variance_ = scale.variance;
+    estimate_ = scale.estimate;
     c_.variance_dof = scale.dof;
   }
 
   struct Scale {
     bool known = false;
-    double variance = 1.0;
+    double variance = 1.0;  // the factor the tests use
+    double estimate = 1.0;  // the factor the data gave (before the cap at 1)
     double dof = std::numeric_limits<double>::infinity();
   };
 
   Scale CurrentScale() const {
     Scale scale;
-    if (c_.options->variance_factor > 0.0) {
-      scale.known = true;
-      scale.variance = c_.options->variance_factor;
-      return scale;
-    }
     std::vector<RedundancySample> samples;
     double dof = 0.0;
     double largest = 0.0;
-    for (size_t q = 0; q < c_.redundancy.size(); ++q) {
-      const RedundancySample& sample = c_.redundancy[q];
-      if (!c_.in_reject[q] && c_.links[q].size() >= 2 && sample.dof > 0.0 &&
-          sample.chi2 > kNoiseless * sample.dof) {
+    for (const RedundancySample& sample : c_.redundancy) {
+      if (sample.dof > 0.0 && sample.chi2 > kNoiseless * sample.dof) {
         samples.push_back(sample);
         dof += sample.dof;
         largest = std::max(largest, sample.dof);
       }
     }
     const double robust = RobustVarianceFactor(samples);
-    if (!std::isfinite(robust) || (largest < kScaleMinimumDof && dof < 3 * kScaleMinimumDof)) {
+    const bool enough =
+        std::isfinite(robust) && (largest >= kScaleMinimumDof || dof >= 3 * kScaleMinimumDof);
+    if (enough) scale.estimate = robust;
+    if (c_.options->variance_factor > 0.0) {
+      scale.known = true;
+      scale.variance = c_.options->variance_factor;
       return scale;
     }
+    if (!enough) return scale;
     scale.known = true;
-    scale.variance = robust;
+    // Never above 1: a factor above 1 says the information is over-confident, and the data cannot
+    // tell that from wrong links clustered with true ones (on KITTI's place-recognition graphs the
+    // estimate came out above 1 and let hundreds of wrong loops in; at 1 none). Over-confident
+    // information is fixed with irrr.variance_factor.
+    scale.variance = std::min(robust, 1.0);
     scale.dof = std::min(dof, kMaxVarianceDof);
     return scale;
   }
@@ -652,6 +658,7 @@ class WarmEngine {
   std::vector<Pose>& x_;
   Optimizer<Pose> optimizer_;
   double variance_ = 1.0;
+  double estimate_ = 1.0;
   bool scale_known_ = false;
   bool released_ = false;
   std::vector<double> accepted_variance_;  // per cluster: the variance factor it was accepted at
