@@ -283,8 +283,10 @@ class WarmEngine {
     std::vector<RedundancySample> samples;
     double dof = 0.0;
     double largest = 0.0;
-    for (const RedundancySample& sample : c_.redundancy) {
-      if (sample.dof > 0.0 && sample.chi2 > kNoiseless * sample.dof) {
+    for (size_t q = 0; q < c_.redundancy.size(); ++q) {
+      const RedundancySample& sample = c_.redundancy[q];
+      if (!c_.in_reject[q] && c_.links[q].size() >= 2 && sample.dof > 0.0 &&
+          sample.chi2 > kNoiseless * sample.dof) {
         samples.push_back(sample);
         dof += sample.dof;
         largest = std::max(largest, sample.dof);
