@@ -21,16 +21,6 @@ double ScaledChiSquareThreshold(double alpha, double dof, double variance, doubl
   return variance * dof * boost::math::quantile(boost::math::fisher_f(dof, variance_dof), alpha);
 }
 
-double PooledVarianceFactor(const std::vector<RedundancySample>& samples) {
-  double chi2 = 0.0;
-  double dof = 0.0;
-  for (const RedundancySample& s : samples) {
-    chi2 += s.chi2;
-    dof += s.dof;
-  }
-  return dof > 0.0 ? chi2 / dof : std::numeric_limits<double>::quiet_NaN();
-}
-
 double RobustVarianceFactor(const std::vector<RedundancySample>& samples) {
   std::vector<std::pair<double, double>> ratios;  // (chi2 / median, dof)
   double total = 0.0;

@@ -42,12 +42,9 @@ struct RedundancySample {
   double dof = 0.0;
 };
 
-// Estimates of s from redundancy (NaN when there is none).
-//  - Pooled: sum of chi2 over sum of dof (unbiased; the estimate when the samples are clean).
-//  - Robust: the median of chi2 / ChiSquareMedian(dof) over the samples, each weighted by its
-//    dof, so that samples holding less than half the redundancy (wrong links clustered by
-//    chance) cannot set it.
-double PooledVarianceFactor(const std::vector<RedundancySample>& samples);
+// The estimate of s from redundancy (NaN when there is none): the median of
+// chi2 / ChiSquareMedian(dof) over the samples, each weighted by its dof, so that samples holding
+// less than half the redundancy (wrong links clustered by chance) cannot set it.
 double RobustVarianceFactor(const std::vector<RedundancySample>& samples);
 
 // The linearized chi2 increase of adding `edges` to a least-squares problem whose optimum is

@@ -35,28 +35,18 @@ TEST_CASE("A scaled threshold is the chi-square quantile for a known factor, the
   CHECK(ChiSquareMedian(3) == Approx(2.3660).margin(5e-5));
 }
 
-TEST_CASE("The robust variance factor is the dof-weighted median, the pooled one the ratio of sums",
-          "[statistics]") {
+TEST_CASE("The robust variance factor is the dof-weighted median of the samples", "[statistics]") {
   // Samples exactly at their median under a factor of 0.02: every estimate is 0.02.
   std::vector<RedundancySample> samples;
   for (double dof : {3.0, 9.0, 60.0, 300.0}) samples.push_back({0.02 * ChiSquareMedian(dof), dof});
   CHECK(RobustVarianceFactor(samples) == Approx(0.02).epsilon(1e-12));
-  double chi2 = 0.0;
-  double dof = 0.0;
-  for (const RedundancySample& s : samples) {
-    chi2 += s.chi2;
-    dof += s.dof;
-  }
-  CHECK(PooledVarianceFactor(samples) == Approx(chi2 / dof).epsilon(1e-12));
-  // Wrong clusters holding less than half the redundancy cannot move the robust estimate, however
-  // inconsistent; the pooled one follows them.
+  // Wrong clusters holding less than half the redundancy cannot move it, however inconsistent.
   samples.push_back({1e6, 100.0});
   samples.push_back({1e7, 200.0});
   CHECK(RobustVarianceFactor(samples) == Approx(0.02).epsilon(1e-12));
-  CHECK(PooledVarianceFactor(samples) > 1e4);
   // A sample without redundancy carries none; no sample: NaN.
   CHECK(std::isnan(RobustVarianceFactor({{1.0, 0.0}})));
-  CHECK(std::isnan(PooledVarianceFactor({})));
+  CHECK(std::isnan(RobustVarianceFactor({})));
 }
 
 // The good set: odometry and every loop but the last; the tested link: the last loop.
