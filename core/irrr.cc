@@ -214,14 +214,14 @@ StepResult Irrr<Pose>::RunStep() {
   consensus.solves = 0;
   consensus.iterations = 0;
 
-  // The components (under the current good set) that the cluster touches.
-  const std::vector<int> component = Components();
   if (st.options.engine == IrrrEngine::kWarm) {
     st.warm_engine.Closed(cluster);
     st.warm_engine.Step(cluster, &result);
     ++consensus.step;
     return result;
   }
+  // The components (under the current good set) that the cluster touches.
+  const std::vector<int> component = Components();
   consensus.warm = &st.estimate;
   consensus.warm_group = component;
   ++consensus.warm_version;

@@ -461,10 +461,15 @@ class WarmEngine {
     }
   }
 
+  // The component of every session under the good set.
+  std::vector<int> GoodComponents() const {
+    const std::vector<char> all(graph().num_sessions(), 1);
+    return SessionComponents(graph(), Active(all, c_.GoodWithin(all)));
+  }
+
   // The sessions of the components (under the good set) that cluster q touches.
   std::vector<char> SessionsTouching(int q) const {
-    const std::vector<char> all(graph().num_sessions(), 1);
-    const std::vector<int> component = SessionComponents(graph(), Active(all, c_.GoodWithin(all)));
+    const std::vector<int> component = GoodComponents();
     std::vector<char> sessions(graph().num_sessions(), 0);
     for (int s = 0; s < graph().num_sessions(); ++s) {
       sessions[s] =
@@ -633,8 +638,7 @@ class WarmEngine {
   // Gauge: each component in the frame of its earliest session's first pose (a reversal can
   // split a component; the later part then moves to its own frame).
   void Reanchor() {
-    const std::vector<char> all(graph().num_sessions(), 1);
-    const std::vector<int> component = SessionComponents(graph(), Active(all, c_.GoodWithin(all)));
+    const std::vector<int> component = GoodComponents();
     std::vector<char> anchored(graph().num_sessions(), 0);
     for (int s = 0; s < graph().num_sessions(); ++s) {
       if (anchored[component[s]] || graph().session(s).vertices.empty()) continue;
