@@ -164,6 +164,20 @@ class LiveMap {
     return j.dump();
   }
 
+  // Whether a verdict names a pose the map has not got (its solution message was lost or is
+  // still on its way).
+  bool MissingPoses() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    for (const auto& [name, entry] : verdicts_) {
+      const verdict_t& v = entry.second;
+      if (Find(v.robot_from, v.session_from, v.key_from) == nullptr ||
+          Find(v.robot_to, v.session_to, v.key_to) == nullptr) {
+        return true;
+      }
+    }
+    return false;
+  }
+
   // Waits up to `timeout` for a version newer than `seen`; returns the current version.
   int64_t WaitForChange(int64_t seen, std::chrono::milliseconds timeout) {
     std::unique_lock<std::mutex> lock(mutex_);
@@ -266,7 +280,14 @@ int Run(Arguments args) {
         "text/event-stream", [&map, seen = int64_t{0}](size_t, httplib::DataSink& sink) mutable {
           // The map as soon as there is one, then whenever it changes (at most 5 times a
           // second), with a comment as a keep-alive every few seconds.
-          const int64_t version = map.WaitForChange(seen, std::chrono::seconds(5));
+          int64_t version = map.WaitForChange(seen, std::chrono::seconds(5));
+          // One step's messages (a solution per session, then the verdicts) make one event:
+          // wait until they stop coming for 100 ms, for at most a second.
+          for (int i = 0; i < 10 && version != seen; ++i) {
+            const int64_t later = map.WaitForChange(version, std::chrono::milliseconds(100));
+            if (later == version) break;
+            version = later;
+          }
           if (map.stopping()) return false;
           const std::string event =
               version == seen ? std::string(": alive\n\n") : "data: " + map.Json() + "\n\n";
@@ -287,17 +308,38 @@ int Run(Arguments args) {
              args.lcm_url.empty() ? "default URL" : args.lcm_url);
   std::fflush(stdout);
 
-  solution_request_t request{};
-  request.header = {NowUtime(), 0, "irrr-view"};
-  request.reason = "irrr-view started";
-  const std::vector<uint8_t> bytes = EncodeMessage(request);
-  lcm.publish(daemon.channels.solution_request, bytes.data(), static_cast<unsigned>(bytes.size()));
-
+  // The whole solution, at start and again whenever poses stay missing for a second (UDP loses
+  // datagrams; the daemon answers a request with every pose and verdict).
+  int64_t request_seq = 0;
+  const auto request_solution = [&](const char* reason) {
+    solution_request_t request{};
+    request.header = {NowUtime(), request_seq++, "irrr-view"};
+    request.reason = reason;
+    const std::vector<uint8_t> bytes = EncodeMessage(request);
+    lcm.publish(
+        daemon.channels.solution_request, bytes.data(), static_cast<unsigned>(bytes.size()));
+  };
+  request_solution("irrr-view started");
+  using Clock = std::chrono::steady_clock;
+  Clock::time_point missing_since = Clock::time_point::max();
+  Clock::time_point last_request = Clock::now();
   for (;;) {
     pollfd fds[2] = {{lcm.getFileno(), POLLIN, 0}, {signal_fd, POLLIN, 0}};
     poll(fds, 2, 200);
     if (fds[1].revents & POLLIN) break;
     if (fds[0].revents & POLLIN) lcm.handle();
+    const Clock::time_point now = Clock::now();
+    if (!map.MissingPoses()) {
+      missing_since = Clock::time_point::max();
+    } else if (missing_since == Clock::time_point::max()) {
+      missing_since = now;
+    } else if (now - missing_since > std::chrono::seconds(1) &&
+               now - last_request > std::chrono::seconds(1)) {
+      fmt::print("irrr-view: verdicts name poses not received; asking for the whole solution\n");
+      std::fflush(stdout);
+      request_solution("irrr-view: poses missing");
+      last_request = now;
+    }
   }
   map.Stop();
   server.stop();

@@ -6,6 +6,8 @@
 #include <thread>
 
 #include <catch2/catch.hpp>
+#include <httplib.h>
+#include <nlohmann/json.hpp>
 
 #include "tests/processes.h"
 #include "tests/test_files.h"
@@ -27,6 +29,23 @@ std::string DrawnMap(const std::string& page) {
   const size_t end = page.find("</svg>", begin);
   return begin == std::string::npos || end == std::string::npos ? ""
                                                                 : page.substr(begin, end - begin);
+}
+
+// Waits up to `seconds` for irrr-view's state (/state.json) to hold `sessions` sessions and more
+// than `accepted` accepted loops, each drawn between poses it has: the page then shows it.
+bool WaitForView(int port, size_t sessions, int accepted, int seconds) {
+  httplib::Client client("127.0.0.1", port);
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(seconds);
+  while (std::chrono::steady_clock::now() < deadline) {
+    if (const auto res = client.Get("/state.json"); res && res->status == 200) {
+      const nlohmann::json state = nlohmann::json::parse(res->body);
+      int drawn = 0;
+      for (const auto& loop : state["loops"]) drawn += loop["state"] == "accepted";
+      if (state["sessions"].size() == sessions && drawn > accepted) return true;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  return false;
 }
 
 // Chromium as the machine's notes say to run it here: headless, no sandbox (root), no GPU, and
@@ -59,6 +78,8 @@ TEST_CASE("udpm: the live map in headless Chromium appears, then updates as corr
   const std::string inject =
       std::string(IRRR_INJECT) + " --config " + Quoted(config) + " --rate 0 --wait --timeout 120 ";
   REQUIRE(RunTool(inject + Quoted(first) + " --sender first", dir + "/inject1.log") == 0);
+  // The injector waits for the daemon; the view hears it a moment later.
+  REQUIRE(WaitForView(18765, 1, 50, 30));
 
   // The map appears: robot 0's session, its loops.
   REQUIRE(RunTool(Chromium(dir, "http://127.0.0.1:18765/?events=1"), dir + "/page1.html") == 0);
