@@ -5,12 +5,15 @@
 #include <string>
 #include <thread>
 
-#include <httplib.h>
 #include <catch2/catch.hpp>
 #include <nlohmann/json.hpp>
 
 #include "tests/processes.h"
 #include "tests/test_files.h"
+
+// After Eigen (through tests/processes.h): httplib.h brings <resolv.h>, whose _res macro breaks
+// Eigen's headers.
+#include <httplib.h>
 
 namespace irrr {
 namespace {
