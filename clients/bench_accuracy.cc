@@ -68,6 +68,7 @@ struct Case {
   std::string timestamps;  // kTimestampGps: one time per graph vertex
   OutlierMode mode = OutlierMode::kRandom;
   int outliers = 0;
+  bool wrong_only = false;  // kLabelled: the true loops removed (a correct answer accepts none)
 };
 
 std::vector<Case> AllCases() {
@@ -125,6 +126,19 @@ std::vector<Case> AllCases() {
       k.reference_path = folder + "_GT.g2o";
       cases.push_back(k);
     }
+  }
+  // A real sequence whose hypotheses are all wrong: KITTI 00 without its labelled true loops.
+  for (const char* alpha : alphas) {
+    const std::string folder = "datasets/kitti_rrr/00/kitti_00";
+    Case k;
+    k.name = fmt::format("kitti00-wrong-only-alpha-{}", alpha);
+    k.kind = CaseKind::kLabelled;
+    k.wrong_only = true;
+    k.graph = fmt::format("{}_alpha_{}.g2o", folder, alpha);
+    k.labels = fmt::format("{}_alpha_{}_GT_LC.txt", folder, alpha);
+    k.reference = ReferenceKind::kGraphFile;
+    k.reference_path = folder + "_GT.g2o";
+    cases.push_back(k);
   }
   for (const char* alpha : {"0.000", "0.250", "0.500", "0.750", "1.000"}) {
     Case k;
@@ -444,6 +458,47 @@ struct Row {
 
 std::string Fixed(double value, int digits) { return fmt::format("{:.{}f}", value, digits); }
 
+// `graph` without the loop edges marked in `remove` (vertex indices unchanged).
+template <class Pose>
+Status RemoveLoops(const std::vector<char>& remove, PoseGraph<Pose>* graph) {
+  const PoseGraph<Pose>& in = *graph;
+  std::vector<int> odometry_to(in.num_vertices(), -1);  // the odometry edge ending at a vertex
+  for (int e = 0; e < in.num_edges(); ++e) {
+    if (in.edge(e).kind == EdgeKind::kOdometry) odometry_to[in.edge(e).to] = e;
+  }
+  PoseGraph<Pose> out;
+  for (int s = 0; s < in.num_sessions(); ++s) {
+    int index = -1;
+    if (Status st = out.AddSession(in.session(s).id, &index); !st.ok()) return st;
+  }
+  for (int v = 0; v < in.num_vertices(); ++v) {
+    const Vertex& vertex = in.vertex(v);
+    const Edge<Pose>* odometry = odometry_to[v] >= 0 ? &in.edge(odometry_to[v]) : nullptr;
+    int index = -1;
+    if (Status st = out.AddPose(vertex.session,
+                                vertex.id,
+                                vertex.stamp,
+                                in.initial_estimate()[v],
+                                odometry ? &odometry->measurement : nullptr,
+                                odometry ? &odometry->information : nullptr,
+                                &index);
+        !st.ok()) {
+      return st;
+    }
+  }
+  for (int e = 0; e < in.num_edges(); ++e) {
+    const Edge<Pose>& edge = in.edge(e);
+    if (edge.kind != EdgeKind::kLoop || remove[e]) continue;
+    int index = -1;
+    if (Status st = out.AddLoop(edge.from, edge.to, edge.measurement, edge.information, &index);
+        !st.ok()) {
+      return st;
+    }
+  }
+  *graph = std::move(out);
+  return Status::Ok();
+}
+
 template <class Pose>
 Status RunCase(const Case& c,
                const Settings& settings,
@@ -494,6 +549,11 @@ Status RunCase(const Case& c,
         fmt::print(stderr, "{}: {} labelled loop(s) match no loop edge\n", c.name, unmatched);
       }
       outlier_note = "place recognition";
+      if (c.wrong_only) {
+        if (Status s = RemoveLoops(is_true, &graph); !s.ok()) return s;
+        is_true.assign(graph.num_edges(), 0);
+        outlier_note = "place recognition, true loops removed";
+      }
     } else {
       return Status::Error(c.name + ": labelled cases are 2D");
     }

@@ -44,10 +44,10 @@ double RobustVarianceFactor(const std::vector<RedundancySample>& samples) {
 }
 
 template <class Pose>
-double LinearizedChi2Increase(const std::vector<const Edge<Pose>*>& edges,
-                              const std::vector<Pose>& estimate,
-                              const std::vector<int>& vertices,
-                              const Eigen::MatrixXd& covariance) {
+LinearizedAddition LinearizeAddition(const std::vector<const Edge<Pose>*>& edges,
+                                     const std::vector<Pose>& estimate,
+                                     const std::vector<int>& vertices,
+                                     const Eigen::MatrixXd& covariance) {
   constexpr int d = Pose::kDim;
   const int n = static_cast<int>(edges.size());
   const int m = static_cast<int>(vertices.size());
@@ -59,7 +59,7 @@ double LinearizedChi2Increase(const std::vector<const Edge<Pose>*>& edges,
   };
   Eigen::VectorXd r(d * n);
   Eigen::MatrixXd J = Eigen::MatrixXd::Zero(d * n, d * m);
-  Eigen::MatrixXd S = Eigen::MatrixXd::Zero(d * n, d * n);
+  Eigen::MatrixXd C = Eigen::MatrixXd::Zero(d * n, d * n);
   typename Pose::Matrix J_from;
   typename Pose::Matrix J_to;
   for (int k = 0; k < n; ++k) {
@@ -68,21 +68,27 @@ double LinearizedChi2Increase(const std::vector<const Edge<Pose>*>& edges,
         edge.measurement, estimate[edge.from], estimate[edge.to], &J_from, &J_to);
     J.block<d, d>(k * d, column_of(edge.from)) += J_from;
     J.block<d, d>(k * d, column_of(edge.to)) += J_to;
-    S.block<d, d>(k * d, k * d) = edge.information.inverse();
+    C.block<d, d>(k * d, k * d) = edge.information.inverse();
   }
-  S += J * covariance * J.transpose();
+  const Eigen::MatrixXd S = C + J * covariance * J.transpose();
   const Eigen::LLT<Eigen::MatrixXd> llt(0.5 * (S + S.transpose()));
-  if (llt.info() != Eigen::Success) return std::numeric_limits<double>::quiet_NaN();
-  return r.dot(llt.solve(r));
+  LinearizedAddition out;
+  if (llt.info() != Eigen::Success) {
+    out.chi2_increase = out.redundancy = std::numeric_limits<double>::quiet_NaN();
+    return out;
+  }
+  out.chi2_increase = r.dot(llt.solve(r));
+  out.redundancy = llt.solve(C).trace() / (d * n);  // tr(S^-1 C) = tr(C S^-1)
+  return out;
 }
 
-template double LinearizedChi2Increase<Pose2>(const std::vector<const Edge<Pose2>*>&,
-                                              const std::vector<Pose2>&,
-                                              const std::vector<int>&,
-                                              const Eigen::MatrixXd&);
-template double LinearizedChi2Increase<Pose3>(const std::vector<const Edge<Pose3>*>&,
-                                              const std::vector<Pose3>&,
-                                              const std::vector<int>&,
-                                              const Eigen::MatrixXd&);
+template LinearizedAddition LinearizeAddition<Pose2>(const std::vector<const Edge<Pose2>*>&,
+                                                     const std::vector<Pose2>&,
+                                                     const std::vector<int>&,
+                                                     const Eigen::MatrixXd&);
+template LinearizedAddition LinearizeAddition<Pose3>(const std::vector<const Edge<Pose3>*>&,
+                                                     const std::vector<Pose3>&,
+                                                     const std::vector<int>&,
+                                                     const Eigen::MatrixXd&);
 
 }  // namespace irrr

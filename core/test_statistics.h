@@ -47,17 +47,26 @@ struct RedundancySample {
 // less than half the redundancy (wrong links clustered by chance) cannot set it.
 double RobustVarianceFactor(const std::vector<RedundancySample>& samples);
 
-// The linearized chi2 increase of adding `edges` to a least-squares problem whose optimum is
-// `estimate`: r' S^-1 r with r the stacked residuals, S = J Sigma J' + blockdiag(Omega^-1), J the
-// residuals' Jacobians with respect to the poses `vertices` and Sigma their joint covariance
-// (d*m x d*m in the order of `vertices`, as Optimizer::Covariance returns it). Every endpoint of
-// `edges` must be in `vertices`. The information is taken as given: divide by a variance factor
-// to test. Returns NaN when S is not positive definite.
+// Adding `edges` to a least-squares problem whose optimum is `estimate`, to first order: r the
+// stacked residuals at `estimate`, J their Jacobians with respect to the poses `vertices`, Sigma
+// those poses' joint covariance (d*m x d*m in the order of `vertices`, as Optimizer::Covariance
+// returns it), C = blockdiag(Omega^-1) and S = J Sigma J' + C. Every endpoint of `edges` must be
+// in `vertices`. The information is taken as given: divide chi2_increase by a variance factor to
+// test.
+struct LinearizedAddition {
+  // r' S^-1 r: the chi2 increase (NaN when S is not positive definite).
+  double chi2_increase = 0.0;
+  // tr(C S^-1) / rows: the links' mean redundancy number (Baarda's reliability). 1 when the
+  // problem knows their end poses exactly, so that all of an error shows in the residual; towards
+  // 0 when it knows them far worse than the links measure them, so that the poses absorb an error
+  // and no test can see it. NaN when S is not positive definite.
+  double redundancy = 0.0;
+};
 template <class Pose>
-double LinearizedChi2Increase(const std::vector<const Edge<Pose>*>& edges,
-                              const std::vector<Pose>& estimate,
-                              const std::vector<int>& vertices,
-                              const Eigen::MatrixXd& covariance);
+LinearizedAddition LinearizeAddition(const std::vector<const Edge<Pose>*>& edges,
+                                     const std::vector<Pose>& estimate,
+                                     const std::vector<int>& vertices,
+                                     const Eigen::MatrixXd& covariance);
 
 }  // namespace irrr
 

@@ -40,6 +40,10 @@ class WarmEngine {
   // A link whose linearized statistic is this many times its threshold is rejected by the
   // screen; closer ones go to the joint test, where the nonlinear optimum decides.
   static constexpr double kScreenMargin = 4.0;
+  // A single-link cluster needs at least this redundancy number to be judged (Unsupported).
+  static constexpr double kMinRedundancy = 0.1;
+  // Links screened per covariance recovery (bounds its memory: 2 x 32 poses).
+  static constexpr size_t kScreenChunk = 32;
 
   WarmEngine(Consensus<Pose>* consensus,
              std::vector<Pose>* estimate,
@@ -79,7 +83,12 @@ class WarmEngine {
       });
     }
     Revalidate(result);
+    const int good_before = GoodLinks();
     for (int q : batch) Judge(q, result);
+    // Clusters that wait for support are judged again once the good set has grown.
+    if (k >= 0 && GoodLinks() != good_before) {
+      for (int q : Waiting()) Judge(q, result);
+    }
     std::vector<int>& changed = result->changed_loops;
     std::sort(changed.begin(), changed.end());
     changed.erase(std::unique(changed.begin(), changed.end()), changed.end());
@@ -136,7 +145,16 @@ class WarmEngine {
     result->reversals += static_cast<int>(suspects.size());
   }
 
-  // The clusters judged by no test yet (waiting for a variance factor), in closing order.
+  int GoodLinks() const {
+    int n = 0;
+    for (int q = 0; q < static_cast<int>(c_.links.size()); ++q) {
+      if (c_.in_good[q]) n += static_cast<int>(c_.links[q].size());
+    }
+    return n;
+  }
+
+  // The clusters judged by no test yet (waiting for a variance factor or for support), in
+  // closing order.
   std::vector<int> Waiting() const {
     std::vector<int> waiting;
     for (int q = 0; q < static_cast<int>(std::min(c_.links.size(), closed_.size())); ++q) {
@@ -151,7 +169,13 @@ class WarmEngine {
   // information as given if none is known by their step.
   void Release() { released_ = true; }
   // Whether released clusters wait for a step of their own (no variance factor known yet).
-  bool HasReleased() const { return released_ && !CurrentScale().known && !Waiting().empty(); }
+  bool HasReleased() const {
+    if (!released_ || CurrentScale().known) return false;
+    for (int q : Waiting()) {
+      if (!IsHeld(q)) return true;
+    }
+    return false;
+  }
 
   // Cluster q has closed (called before its step; clusters split off by Algorithm 1 are judged
   // in the step that made them).
@@ -176,6 +200,7 @@ class WarmEngine {
   void Clear() {
     accepted_variance_.clear();
     closed_.clear();
+    held_.clear();
   }
 
  private:
@@ -315,35 +340,45 @@ class WarmEngine {
   // The screen: links far off at the current optimum leave cluster q. Only for a cluster inside
   // one component (across two, the relative frame is not known yet).
   void Screen(int q, const std::vector<char>& active_good, std::vector<int>* changed) {
-    std::vector<int> vertices;
-    for (int e : c_.links[q]) {
-      vertices.push_back(graph().edge(e).from);
-      vertices.push_back(graph().edge(e).to);
-    }
-    std::sort(vertices.begin(), vertices.end());
-    vertices.erase(std::unique(vertices.begin(), vertices.end()), vertices.end());
-    Eigen::MatrixXd covariance;
     if (!factorized_ && !optimizer_.FactorizeAt(graph(), active_good, x_)) return;
     factorized_ = true;
-    if (!optimizer_.Covariance(vertices, &covariance)) return;  // no screen: the joint test decides
-    auto index_of = [&vertices](int v) {
-      return static_cast<int>(std::lower_bound(vertices.begin(), vertices.end(), v) -
-                              vertices.begin());
-    };
+    // Each link against the covariance of its end poses, kScreenChunk links at a time: the dense
+    // covariance of every vertex of a large cluster at once would take gigabytes.
+    const std::vector<int>& links = c_.links[q];
+    std::vector<LinearizedAddition> additions(links.size());
+    for (size_t first = 0; first < links.size(); first += kScreenChunk) {
+      const size_t last = std::min(links.size(), first + kScreenChunk);
+      std::vector<int> vertices;
+      for (size_t i = first; i < last; ++i) {
+        vertices.push_back(graph().edge(links[i]).from);
+        vertices.push_back(graph().edge(links[i]).to);
+      }
+      std::sort(vertices.begin(), vertices.end());
+      vertices.erase(std::unique(vertices.begin(), vertices.end()), vertices.end());
+      Eigen::MatrixXd covariance;
+      if (!optimizer_.Covariance(vertices, &covariance)) return;  // the joint test decides
+      const auto index_of = [&vertices](int v) {
+        return kDim * static_cast<int>(std::lower_bound(vertices.begin(), vertices.end(), v) -
+                                       vertices.begin());
+      };
+      for (size_t i = first; i < last; ++i) {
+        const Edge<Pose>& edge = graph().edge(links[i]);
+        const int a = index_of(edge.from);
+        const int b = index_of(edge.to);
+        Eigen::MatrixXd pair(2 * kDim, 2 * kDim);
+        pair << covariance.block<kDim, kDim>(a, a), covariance.block<kDim, kDim>(a, b),
+            covariance.block<kDim, kDim>(b, a), covariance.block<kDim, kDim>(b, b);
+        additions[i] = LinearizeAddition<Pose>({&edge}, x_, {edge.from, edge.to}, pair);
+      }
+    }
     const double far = kScreenMargin * Threshold(kDim);
+    control_.resize(graph().num_edges(), 0.0);
     std::vector<int> kept;
     std::vector<std::pair<int, double>> far_off;
-    for (int e : c_.links[q]) {
-      const Edge<Pose>& edge = graph().edge(e);
-      const int a = index_of(edge.from);
-      const int b = index_of(edge.to);
-      Eigen::MatrixXd pair(2 * kDim, 2 * kDim);
-      pair << covariance.block<kDim, kDim>(a * kDim, a * kDim),
-          covariance.block<kDim, kDim>(a * kDim, b * kDim),
-          covariance.block<kDim, kDim>(b * kDim, a * kDim),
-          covariance.block<kDim, kDim>(b * kDim, b * kDim);
-      const double statistic =
-          LinearizedChi2Increase<Pose>({&edge}, x_, {edge.from, edge.to}, pair);
+    for (size_t i = 0; i < links.size(); ++i) {
+      const int e = links[i];
+      const double statistic = additions[i].chi2_increase;
+      control_[e] = std::isfinite(additions[i].redundancy) ? additions[i].redundancy : 0.0;
       if (statistic <= far) {
         kept.push_back(e);
       } else {
@@ -456,9 +491,30 @@ class WarmEngine {
     }
     for (int q : candidates) {
       if (!c_.in_r[q] || c_.links[q].empty()) continue;
+      if (Unsupported(q)) {
+        // Waits, as judged by nothing yet, for a good set that can check it.
+        c_.in_r[q] = 0;
+        held_.resize(c_.links.size(), 0);
+        held_[q] = 1;
+        const int e = c_.links[q].front();
+        c_.SetDecision(e, LoopState::kPending, 0.0, 0.0, changed);
+        continue;
+      }
       RecordRedundancy(q);
       JointTest(q, sessions, changed, result);
     }
+  }
+
+  // A cluster of one link (none of its own to support it) whose end poses the good set knows far
+  // worse than the link measures them (redundancy number below kMinRedundancy, or in two
+  // components): the link would bend the estimate to fit whatever it says, so no test can tell
+  // it wrong.
+  bool IsHeld(int q) const { return q < static_cast<int>(held_.size()) && held_[q]; }
+
+  bool Unsupported(int q) const {
+    if (c_.links[q].size() != 1) return false;
+    const int e = c_.links[q].front();
+    return e >= static_cast<int>(control_.size()) || control_[e] < kMinRedundancy;
   }
 
   // The component of every session under the good set.
@@ -671,6 +727,8 @@ class WarmEngine {
   std::vector<char> closed_;               // per cluster: closed (judged, or waiting)
   // Whether optimizer_ holds the factorization of this step's good set at x_ (the screen's).
   bool factorized_ = false;
+  std::vector<double> control_;  // per loop edge: its redundancy number at its last screen
+  std::vector<char> held_;       // per cluster: waits for support (Unsupported)
 };
 
 }  // namespace irrr::internal

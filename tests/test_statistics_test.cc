@@ -54,6 +54,8 @@ template <class Pose>
 struct Increase {
   double linearized = 0.0;
   double exact = 0.0;
+  double redundancy = 0.0;  // the screen's redundancy number of the link
+  double hat = 0.0;         // tr(J Sigma_joint J' Omega) / d at the joint optimum
 };
 
 template <class Pose>
@@ -74,18 +76,32 @@ Increase<Pose> LinkIncrease(const PoseGraph<Pose>& graph) {
   REQUIRE(optimizer.FactorizeAt(graph, good, x));
   REQUIRE(optimizer.Covariance({edge.from, edge.to}, &covariance));
   Increase<Pose> out;
-  out.linearized = LinearizedChi2Increase<Pose>({&edge}, x, {edge.from, edge.to}, covariance);
-  const OptimizerSummary joint =
-      optimizer.Solve(graph, std::vector<char>(graph.num_edges(), 1), &x);
+  const LinearizedAddition addition =
+      LinearizeAddition<Pose>({&edge}, x, {edge.from, edge.to}, covariance);
+  out.linearized = addition.chi2_increase;
+  out.redundancy = addition.redundancy;
+  const std::vector<char> all(graph.num_edges(), 1);
+  const OptimizerSummary joint = optimizer.Solve(graph, all, &x);
   REQUIRE(joint.termination == TerminationType::kConvergence);
   out.exact = joint.final_chi2 - base.final_chi2;
+  // The link's share of its own fit (its leverage) from the joint problem's covariance: one
+  // minus its redundancy number.
+  REQUIRE(optimizer.FactorizeAt(graph, all, x));
+  REQUIRE(optimizer.Covariance({edge.from, edge.to}, &covariance));
+  typename Pose::Matrix J_from;
+  typename Pose::Matrix J_to;
+  RelativePoseResidual<Pose>(edge.measurement, x[edge.from], x[edge.to], &J_from, &J_to);
+  Eigen::MatrixXd J(Pose::kDim, 2 * Pose::kDim);
+  J << J_from, J_to;
+  out.hat = (J * covariance * J.transpose() * edge.information).trace() / Pose::kDim;
   return out;
 }
 
-TEMPLATE_TEST_CASE("The linearized screen equals the chi2 increase on a linear-Gaussian graph",
-                   "[statistics]",
-                   Pose2,
-                   Pose3) {
+TEMPLATE_TEST_CASE(
+    "The linearized screen equals the chi2 increase and one minus the leverage on a linear graph",
+    "[statistics]",
+    Pose2,
+    Pose3) {
   // Rotations known to 1e-7 rad and translations noisy: the problem is linear in the
   // translations to within rounding, and the screen's statistic is the exact chi2 increase.
   SyntheticOptions linear;
@@ -98,6 +114,11 @@ TEMPLATE_TEST_CASE("The linearized screen equals the chi2 increase on a linear-G
   INFO("linearized " << near.linearized << ", exact " << near.exact);
   CHECK(near.exact > 0.1);
   CHECK(near.linearized == Approx(near.exact).epsilon(1e-5));
+  // Its redundancy number is what the joint problem leaves of the link to itself: 1 - leverage.
+  INFO("redundancy " << near.redundancy << ", leverage " << near.hat);
+  CHECK(near.redundancy > 0.05);
+  CHECK(near.redundancy < 0.95);
+  CHECK(near.redundancy == Approx(1.0 - near.hat).epsilon(1e-5));
 
   // With rotation noise of 0.01 rad it is an approximation, still within a few percent.
   SyntheticOptions noisy = linear;
