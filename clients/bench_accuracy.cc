@@ -32,6 +32,7 @@
 #include <CLI/CLI.hpp>
 #include <Eigen/Geometry>
 
+#include "clients/allocator.h"
 #include "clients/graph_files.h"
 #include "core/irrr.h"
 #include "core/optimizer.h"
@@ -778,6 +779,7 @@ std::string QuotedCommand(int argc, char** argv) {
 }  // namespace irrr
 
 int main(int argc, char** argv) {
+  irrr::TuneAllocatorForSolves();
   std::string shared = "../shared";
   std::string filter;
   std::string methods_option = "irrr";

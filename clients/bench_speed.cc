@@ -29,6 +29,7 @@
 #include <fmt/core.h>
 #include <CLI/CLI.hpp>
 
+#include "clients/allocator.h"
 #include "clients/graph_files.h"
 #include "clients/thread_pool.h"
 #include "core/irrr.h"
@@ -497,6 +498,7 @@ std::vector<std::string> SplitCommas(const std::string& text) {
 }
 
 int Main(int argc, char** argv) {
+  TuneAllocatorForSolves();
   CLI::App app("irrr-bench-speed: incremental iRRR's speed, and what each speed-up buys");
   Settings settings;
   std::string datasets = "manhattan,city10000,sphere2500";

@@ -26,6 +26,7 @@
 #include <fmt/ranges.h>
 #include <CLI/CLI.hpp>
 
+#include "clients/allocator.h"
 #include "clients/graph_files.h"
 #include "clients/irrr_config.h"
 #include "clients/loop_csv.h"
@@ -325,6 +326,7 @@ int Run(const BatchArguments& args, const IrrrOptions& options, FileFormat forma
 }  // namespace irrr
 
 int main(int argc, char** argv) {
+  irrr::TuneAllocatorForSolves();
   irrr::BatchArguments args;
   double alpha = 0.0;
   double cluster_gap = 0.0;

@@ -37,6 +37,7 @@
 #include <CLI/CLI.hpp>
 #include <lcm/lcm-cpp.hpp>
 
+#include "clients/allocator.h"
 #include "clients/irrr_config.h"
 #include "daemon/raw_subscription.h"
 #include "daemon/service.h"
@@ -300,6 +301,7 @@ int Run(const Arguments& args, const CLI::App& app) {
 }  // namespace irrr
 
 int main(int argc, char** argv) {
+  irrr::TuneAllocatorForSolves();
   irrr::Arguments args;
   CLI::App app{"irrrd: the iRRR loop-closing daemon (LCM)"};
   app.add_option("--config", args.config, "JSON configuration (config/irrrd.json documents it)");
