@@ -115,6 +115,9 @@ std::vector<Case> AllCases() {
     }
   }
   const char* alphas[] = {"0.00", "0.25", "0.50", "0.75", "1.00"};
+  // KITTI 00 and 05; and from 00 a real sequence whose hypotheses are all wrong (its labelled
+  // true loops removed).
+  std::vector<Case> wrong_only;
   for (const char* sequence : {"00", "05"}) {
     for (const char* alpha : alphas) {
       const std::string folder = fmt::format("datasets/kitti_rrr/{}/kitti_{}", sequence, sequence);
@@ -126,21 +129,14 @@ std::vector<Case> AllCases() {
       k.reference = ReferenceKind::kGraphFile;
       k.reference_path = folder + "_GT.g2o";
       cases.push_back(k);
+      if (std::string(sequence) == "00") {
+        k.name = fmt::format("kitti00-wrong-only-alpha-{}", alpha);
+        k.wrong_only = true;
+        wrong_only.push_back(k);
+      }
     }
   }
-  // A real sequence whose hypotheses are all wrong: KITTI 00 without its labelled true loops.
-  for (const char* alpha : alphas) {
-    const std::string folder = "datasets/kitti_rrr/00/kitti_00";
-    Case k;
-    k.name = fmt::format("kitti00-wrong-only-alpha-{}", alpha);
-    k.kind = CaseKind::kLabelled;
-    k.wrong_only = true;
-    k.graph = fmt::format("{}_alpha_{}.g2o", folder, alpha);
-    k.labels = fmt::format("{}_alpha_{}_GT_LC.txt", folder, alpha);
-    k.reference = ReferenceKind::kGraphFile;
-    k.reference_path = folder + "_GT.g2o";
-    cases.push_back(k);
-  }
+  cases.insert(cases.end(), wrong_only.begin(), wrong_only.end());
   for (const char* alpha : {"0.000", "0.250", "0.500", "0.750", "1.000"}) {
     Case k;
     k.name = fmt::format("bicocca25b-alpha-{}", alpha);

@@ -321,25 +321,25 @@ int Run(Arguments args) {
   };
   request_solution("irrr-view started");
   using Clock = std::chrono::steady_clock;
-  Clock::time_point missing_since = Clock::time_point::max();
-  Clock::time_point last_request = Clock::now();
+  Clock::time_point next_check = Clock::now() + std::chrono::seconds(1);
+  bool missing = false;  // at the last check
   for (;;) {
     pollfd fds[2] = {{lcm.getFileno(), POLLIN, 0}, {signal_fd, POLLIN, 0}};
     poll(fds, 2, 200);
     if (fds[1].revents & POLLIN) break;
     if (fds[0].revents & POLLIN) lcm.handle();
+    // Once a second (the check reads every verdict): poses missing at two checks in a row are
+    // not just on their way.
     const Clock::time_point now = Clock::now();
-    if (!map.MissingPoses()) {
-      missing_since = Clock::time_point::max();
-    } else if (missing_since == Clock::time_point::max()) {
-      missing_since = now;
-    } else if (now - missing_since > std::chrono::seconds(1) &&
-               now - last_request > std::chrono::seconds(1)) {
+    if (now < next_check) continue;
+    next_check = now + std::chrono::seconds(1);
+    const bool missing_now = map.MissingPoses();
+    if (missing && missing_now) {
       fmt::print("irrr-view: verdicts name poses not received; asking for the whole solution\n");
       std::fflush(stdout);
       request_solution("irrr-view: poses missing");
-      last_request = now;
     }
+    missing = missing_now;
   }
   map.Stop();
   server.stop();
