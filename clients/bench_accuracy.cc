@@ -157,21 +157,17 @@ struct Method {
   bool paper_faithful = false;
   double alpha = 0.0;             // > 0: overrides the preset's
   double variance_factor = -1.0;  // >= 0: overrides the default (0: estimated)
-  bool cold = false;              // the default's tests on the cold engine
 };
 
 std::string MethodName(const Method& m) { return m.incremental ? "irrr" : "rrr"; }
 std::string DofName(GraphDegreesOfFreedom dof) {
   return dof == GraphDegreesOfFreedom::kResidualRows ? "residual_rows" : "exact";
 }
-std::string VariantName(const Method& m) {
-  return m.paper_faithful ? "paper" : m.cold ? "cold" : "default";
-}
+std::string VariantName(const Method& m) { return m.paper_faithful ? "paper" : "default"; }
 
 IrrrOptions OptionsFor(const Method& m) {
   IrrrOptions options = m.paper_faithful ? IrrrOptions::PaperFaithful() : IrrrOptions();
   options.graph_dof = m.dof;
-  if (m.cold) options.engine = IrrrEngine::kCold;
   if (m.alpha > 0.0) options.alpha = m.alpha;
   if (m.variance_factor >= 0.0) options.variance_factor = m.variance_factor;
   return options;
@@ -801,7 +797,7 @@ int main(int argc, char** argv) {
   auto* paper = app.add_flag(
       "--paper-faithful", paper_faithful, "the paper's tests as written (same as --variant paper)");
   app.add_option("--variant", variant, "default (strengthened tests), paper, or both")
-      ->check(CLI::IsMember({"default", "paper", "both", "cold"}))
+      ->check(CLI::IsMember({"default", "paper", "both"}))
       ->excludes(paper)
       ->capture_default_str();
   double alpha = 0.0;
@@ -853,8 +849,7 @@ int main(int argc, char** argv) {
     }
     for (irrr::GraphDegreesOfFreedom dof : dofs) {
       for (bool p : variants) {
-        settings.methods.push_back(
-            {name == "irrr", dof, p, alpha, variance_factor, !p && variant == "cold"});
+        settings.methods.push_back({name == "irrr", dof, p, alpha, variance_factor});
       }
     }
   }

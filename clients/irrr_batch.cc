@@ -31,7 +31,6 @@
 #include "clients/irrr_config.h"
 #include "clients/loop_csv.h"
 #include "clients/plots.h"
-#include "clients/thread_pool.h"
 #include "core/graph_io.h"
 #include "core/irrr.h"
 #include "core/optimizer.h"
@@ -50,7 +49,6 @@ struct BatchArguments {
   std::string plot;
   std::string labels;
   bool skip_unknown_tags = false;
-  int threads = 0;  // 0: ThreadPool::DefaultThreads()
 };
 
 // Precision and recall of the decisions against an irrr-corrupt labels file (rows by file edge
@@ -194,14 +192,12 @@ int Run(const BatchArguments& args, const IrrrOptions& options, FileFormat forma
         1e3 * solve_s / std::max(1, summary.iterations));
     if (!summary.IsSolutionUsable()) exit_code = EX_SOFTWARE;
   } else {
-    ThreadPool pool(args.threads > 0 ? args.threads : ThreadPool::DefaultThreads());
     const auto decide_start = std::chrono::steady_clock::now();
     if (args.method == "rrr") {
-      decisions = RunBatchRrr(graph, options, &estimate, pool.AsParallelFor(), pool.size());
+      decisions = RunBatchRrr(graph, options, &estimate);
     } else {
       // RunIncrementalIrrr's replay, with each step timed (for --plot).
       Irrr<Pose> irrr(options);
-      irrr.SetParallelFor(pool.AsParallelFor(), pool.size());
       GraphReplay<Pose> replay(graph, &irrr);
       auto run_steps = [&]() {
         while (irrr.HasPendingStep()) {
@@ -389,11 +385,6 @@ int main(int argc, char** argv) {
                  fmt::format("optimizer iteration limit [{}]",
                              defaults["optimizer"]["max_iterations"].dump()))
       ->check(CLI::PositiveNumber);
-  app.add_option("--threads",
-                 args.threads,
-                 "threads for independent checks (0: one per core; decisions do not depend on it)")
-      ->check(CLI::NonNegativeNumber)
-      ->capture_default_str();
   app.add_flag("--skip-unknown-tags",
                args.skip_unknown_tags,
                "ignore lines with tags other than vertices and edges (e.g. EQUIV)");

@@ -32,19 +32,6 @@ void VisitFields(IrrrOptions& options, Visitor& visit) {
   visit("variance_factor", options.variance_factor);
   visit("cluster_gap", options.cluster_gap);
   visit("graph_dof", options.graph_dof);
-  visit("require_each_cluster_consistent", options.require_each_cluster_consistent);
-  visit("prune_failing_clusters", options.prune_failing_clusters);
-  visit("elimination_lookahead", options.elimination_lookahead);
-  visit("split_failing_links", options.split_failing_links);
-  visit("settle_undecided", options.settle_undecided);
-  visit("revive_opponents", options.revive_opponents);
-  visit("retry_within_step", options.retry_within_step);
-  visit("local_problems", options.local_problems);
-  visit("warm_start", options.warm_start);
-  visit("reuse_solves", options.reuse_solves);
-  visit("reuse_analysis", options.reuse_analysis);
-  visit("lazy_lookahead", options.lazy_lookahead);
-  visit("max_cluster_size", options.max_cluster_size);
   visit("optimizer", options.optimizer);
 }
 
@@ -98,7 +85,6 @@ void VisitFields(DaemonOptions& options, Visitor& visit) {
   visit("lcm_url", options.lcm_url);
   visit("log_level", options.log_level);
   visit("status_hz", options.status_hz);
-  visit("threads", options.threads);
   visit("channels", options.channels);
   visit("limits", options.limits);
   visit("resync", options.resync);
@@ -114,7 +100,7 @@ using EnumNames = std::vector<std::pair<Enum, const char*>>;
 const EnumNames<IrrrEngine>& NamesOf(IrrrEngine) {
   static const EnumNames<IrrrEngine> names = {
       {IrrrEngine::kWarm, "warm"},
-      {IrrrEngine::kCold, "cold"},
+      {IrrrEngine::kPaper, "paper"},
   };
   return names;
 }
@@ -398,9 +384,6 @@ Status DaemonOptions::Validate() const {
   }
   if (!(status_hz > 0.0 && status_hz <= 100.0)) {
     return Status::Error("status_hz: must be in (0, 100], got " + std::to_string(status_hz));
-  }
-  if (threads < 0 || threads > 64) {
-    return Status::Error("threads: must be in [0, 64], got " + std::to_string(threads));
   }
   std::set<std::string> names;
   DaemonChannels copy = channels;

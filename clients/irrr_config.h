@@ -100,9 +100,6 @@ struct DaemonOptions {
   std::string lcm_url;              // "" = LCM's default (env LCM_DEFAULT_URL, else udpm ttl=0)
   std::string log_level = "info";   // spdlog: trace, debug, info, warn, error, critical, off
   double status_hz = 1.0;           // heartbeat rate, (0, 100]
-  // Threads for iRRR's independent checks (0: one per core, at most 64); decisions do not
-  // depend on it.
-  int threads = 0;
   DaemonChannels channels;
   DaemonLimits limits;
   DaemonResync resync;

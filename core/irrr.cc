@@ -2,28 +2,27 @@
 
 #include <algorithm>
 #include <cmath>
-#include <functional>
 #include <memory>
 
-#include "core/consensus.h"
+#include "core/paper_engine.h"
 #include "core/warm_engine.h"
 
 namespace irrr {
 
-using internal::Consensus;
-using internal::WarmEngine;
+const char* IrrrEngineName(IrrrEngine engine) {
+  switch (engine) {
+    case IrrrEngine::kWarm:
+      return "warm";
+    case IrrrEngine::kPaper:
+      return "paper";
+  }
+  return "unknown";
+}
 
 IrrrOptions IrrrOptions::PaperFaithful() {
   IrrrOptions options;
-  options.engine = IrrrEngine::kCold;
+  options.engine = IrrrEngine::kPaper;
   options.alpha = 0.95;
-  options.require_each_cluster_consistent = false;
-  options.prune_failing_clusters = false;
-  options.elimination_lookahead = 1;
-  options.split_failing_links = false;
-  options.settle_undecided = false;
-  options.revive_opponents = false;
-  options.retry_within_step = false;
   return options;
 }
 
@@ -35,8 +34,6 @@ Status IrrrOptions::Validate() const {
   if (!(variance_factor >= 0.0) || !std::isfinite(variance_factor)) {
     return Status::Error("variance_factor must be a finite number >= 0 (0: estimated)");
   }
-  if (elimination_lookahead < 1) return Status::Error("elimination_lookahead must be >= 1");
-  if (max_cluster_size < 0) return Status::Error("max_cluster_size must be >= 0");
   if (Status s = optimizer.Validate(); !s.ok()) return Status::Error("optimizer: " + s.message());
   return Status::Ok();
 }
@@ -61,14 +58,15 @@ const char* LoopStateName(LoopState state) {
 
 template <class Pose>
 struct Irrr<Pose>::State {
-  explicit State(const IrrrOptions& o) : options(o), clusterer(o.cluster_gap, o.max_cluster_size) {
-    consensus.graph = &graph;
-    consensus.options = &options;
-    consensus.decisions = &decisions;
-    consensus.dead_reckoning = &dead_reckoning;
-  }
+  explicit State(const IrrrOptions& o)
+      : options(o),
+        clusterer(o.cluster_gap),
+        warm(&graph, &options, &book, &estimate, &dead_reckoning),
+        paper(&graph, &options, &book, &estimate, &dead_reckoning) {}
 
-  // Records clusters that closed, in closing order.
+  bool IsWarm() const { return options.engine == IrrrEngine::kWarm; }
+
+  // Records clusters that closed, in closing order (each is marked closed when its step comes).
   void Closed(const std::vector<int>& clusters) {
     closed.insert(closed.end(), clusters.begin(), clusters.end());
   }
@@ -76,14 +74,14 @@ struct Irrr<Pose>::State {
   IrrrOptions options;
   PoseGraph<Pose> graph;
   LoopClusterer clusterer;
-  std::vector<LoopDecision> decisions;
+  DecisionBook book;
   std::vector<Pose> estimate;
   std::vector<Pose> dead_reckoning;
-  std::vector<int> closed;
-  std::vector<int> consensus_of;  // consensus cluster of each clusterer cluster
+  std::vector<int> closed;      // clusterer clusters, in closing order
+  std::vector<int> cluster_of;  // judged cluster of each clusterer cluster
   size_t next_closed = 0;
-  Consensus<Pose> consensus;
-  WarmEngine<Pose> warm_engine{&consensus, &estimate, options.optimizer};
+  WarmEngine<Pose> warm;
+  PaperEngine<Pose> paper;
 };
 
 template <class Pose>
@@ -97,11 +95,7 @@ Irrr<Pose>::~Irrr() = default;
 
 template <class Pose>
 Status Irrr<Pose>::AddSession(int64_t session_id, int* session_index) {
-  int index = -1;
-  if (Status s = state_->graph.AddSession(session_id, &index); !s.ok()) return s;
-  state_->consensus.odometry_of_session.emplace_back();
-  if (session_index != nullptr) *session_index = index;
-  return Status::Ok();
+  return state_->graph.AddSession(session_id, session_index);
 }
 
 template <class Pose>
@@ -130,10 +124,8 @@ Status Irrr<Pose>::AddPose(int session,
   }
   st.estimate.push_back(initial);
   st.dead_reckoning.push_back(dead_reckoning);
-  for (int e = edges_before; e < st.graph.num_edges(); ++e) {
-    st.decisions.emplace_back();
-    st.consensus.odometry_of_session[session].push_back(e);
-  }
+  for (int e = edges_before; e < st.graph.num_edges(); ++e) st.book.decisions.emplace_back();
+  if (st.IsWarm()) st.warm.AddPose(index);
   st.Closed(st.clusterer.AdvanceSession(session, stamp));
   if (vertex_index != nullptr) *vertex_index = index;
   return Status::Ok();
@@ -154,13 +146,13 @@ Status Irrr<Pose>::AddLoop(int from_vertex,
   const Vertex& from = st.graph.vertex(from_vertex);
   const Vertex& to = st.graph.vertex(to_vertex);
   const int cluster = st.clusterer.AddLink(edge, from.session, from.stamp, to.session, to.stamp);
-  while (static_cast<int>(st.consensus_of.size()) <= cluster) {
-    const LoopCluster& c = st.clusterer.cluster(static_cast<int>(st.consensus_of.size()));
-    st.consensus_of.push_back(st.consensus.AddCluster(c.session_a, c.session_b));
+  while (static_cast<int>(st.cluster_of.size()) <= cluster) {
+    const LoopCluster& c = st.clusterer.cluster(static_cast<int>(st.cluster_of.size()));
+    st.cluster_of.push_back(st.book.AddCluster(c.session_a, c.session_b));
   }
-  st.consensus.links[st.consensus_of[cluster]].push_back(edge);
-  st.decisions.emplace_back();
-  st.decisions[edge].cluster = st.consensus_of[cluster];
+  st.book.clusters[st.cluster_of[cluster]].links.push_back(edge);
+  st.book.decisions.emplace_back();
+  st.book.decisions[edge].cluster = st.cluster_of[cluster];
   if (edge_index != nullptr) *edge_index = edge;
   return Status::Ok();
 }
@@ -171,86 +163,38 @@ Status Irrr<Pose>::EndSession(int session) {
     return Status::Error("unknown session index " + std::to_string(session));
   }
   state_->Closed(state_->clusterer.EndSession(session));
-  state_->warm_engine.Release();
+  state_->warm.Release();
   return Status::Ok();
 }
 
 template <class Pose>
 void Irrr<Pose>::Flush() {
   state_->Closed(state_->clusterer.CloseAll());
-  state_->warm_engine.Release();
-}
-
-template <class Pose>
-void Irrr<Pose>::SetParallelFor(ParallelFor parallel_for, int workers) {
-  state_->consensus.parallel_for = std::move(parallel_for);
-  state_->consensus.workers = workers;
+  state_->warm.Release();
 }
 
 template <class Pose>
 bool Irrr<Pose>::HasPendingStep() const {
   return state_->next_closed < state_->closed.size() ||
-         (state_->options.engine == IrrrEngine::kWarm && state_->warm_engine.HasReleased());
+         (state_->IsWarm() && state_->warm.HasReleased());
 }
 
 template <class Pose>
 StepResult Irrr<Pose>::RunStep() {
   IRRR_CHECK(HasPendingStep());
   State& st = *state_;
-  Consensus<Pose>& consensus = st.consensus;
-  if (st.next_closed == st.closed.size()) {
-    // Warm engine: clusters that waited for a variance factor, released by a flush or a session's
-    // end, are judged with the information as given.
-    StepResult result;
-    result.step = consensus.step;
-    st.warm_engine.Step(-1, &result);
-    ++consensus.step;
-    return result;
-  }
-  const int cluster = st.consensus_of[st.closed[st.next_closed++]];
   StepResult result;
-  result.step = consensus.step;
-  result.cluster = cluster;
-  consensus.solves = 0;
-  consensus.iterations = 0;
-
-  if (st.options.engine == IrrrEngine::kWarm) {
-    st.warm_engine.Closed(cluster);
-    st.warm_engine.Step(cluster, &result);
-    ++consensus.step;
-    return result;
+  result.step = st.book.step;
+  if (st.next_closed < st.closed.size()) {
+    result.cluster = st.cluster_of[st.closed[st.next_closed++]];
+    st.book.clusters[result.cluster].closed = true;
   }
-  // The components (under the current good set) that the cluster touches.
-  const std::vector<int> component = Components();
-  consensus.warm = &st.estimate;
-  consensus.warm_group = component;
-  ++consensus.warm_version;
-  std::vector<char> sessions(st.graph.num_sessions(), 0);
-  for (int s = 0; s < st.graph.num_sessions(); ++s) {
-    sessions[s] = component[s] == component[consensus.session_a[cluster]] ||
-                  component[s] == component[consensus.session_b[cluster]];
+  if (st.IsWarm()) {
+    st.warm.Step(result.cluster, &result);
+  } else {
+    st.paper.Step(result.cluster, &result);
   }
-  // With workers to spare, Algorithm 1's first optimization and the joint test the step runs
-  // if the cluster passes it whole (the common case) go side by side.
-  std::vector<int> tested = consensus.GoodWithin(sessions);
-  tested.push_back(cluster);
-  consensus.Prefetch({consensus.Prepare(consensus.SessionsOf({cluster}), {cluster}, false),
-                      consensus.Prepare(sessions, tested, true)});
-
-  if (consensus.IntraCluster(cluster, &result.changed_loops)) {
-    consensus.Algorithm3(sessions, /*incremental=*/true, &result.changed_loops);
-    const auto solution =
-        consensus.Solve(sessions, consensus.GoodWithin(sessions), true, &st.estimate);
-    result.final_summary = solution.summary;
-    for (int s = 0; s < st.graph.num_sessions(); ++s) {
-      if (!sessions[s]) continue;
-      result.sessions.push_back(s);
-      for (int v : st.graph.session(s).vertices) st.estimate[v] = solution.estimate[v];
-    }
-  }
-  result.solves = consensus.solves;
-  result.iterations = consensus.iterations;
-  ++consensus.step;
+  ++st.book.step;
   return result;
 }
 
@@ -266,7 +210,7 @@ const std::vector<Pose>& Irrr<Pose>::estimate() const {
 
 template <class Pose>
 const LoopDecision& Irrr<Pose>::decision(int edge) const {
-  return state_->decisions[edge];
+  return state_->book.decisions[edge];
 }
 
 template <class Pose>
@@ -276,33 +220,23 @@ const LoopClusterer& Irrr<Pose>::clusters() const {
 
 template <class Pose>
 int Irrr<Pose>::num_steps() const {
-  return state_->consensus.step;
+  return state_->book.step;
+}
+
+template <class Pose>
+std::vector<int> Irrr<Pose>::Components() const {
+  return state_->IsWarm() ? state_->warm.Components() : state_->paper.Components();
 }
 
 template <class Pose>
 IrrrStepState<Pose> Irrr<Pose>::StepState() const {
   const State& st = *state_;
-  const Consensus<Pose>& c = st.consensus;
   IrrrStepState<Pose> out;
-  out.decisions = st.decisions;
+  out.decisions = st.book.decisions;
   out.estimate = st.estimate;
-  out.clusters.resize(c.links.size());
-  for (size_t k = 0; k < c.links.size(); ++k) {
-    typename IrrrStepState<Pose>::Cluster& cluster = out.clusters[k];
-    cluster.links = c.links[k];
-    cluster.session_a = c.session_a[k];
-    cluster.session_b = c.session_b[k];
-    cluster.in_r = c.in_r[k] != 0;
-    cluster.in_good = c.in_good[k] != 0;
-    cluster.in_reject = c.in_reject[k] != 0;
-    cluster.opponents = c.opponents[k];
-    cluster.redundancy_chi2 = c.redundancy[k].chi2;
-    cluster.redundancy_dof = c.redundancy[k].dof;
-    cluster.accepted_variance = st.warm_engine.AcceptedVariance(static_cast<int>(k));
-    cluster.closed = st.warm_engine.IsClosed(static_cast<int>(k));
-  }
-  out.cluster_of = st.consensus_of;
-  out.steps = c.step;
+  out.clusters = st.book.clusters;
+  out.cluster_of = st.cluster_of;
+  out.steps = st.book.step;
   out.judged = static_cast<int>(st.next_closed);
   return out;
 }
@@ -340,7 +274,7 @@ Status Irrr<Pose>::RestoreStepState(IrrrStepState<Pose> state) {
   for (const Pose& pose : state.estimate) {
     if (!pose.IsFinite()) return Status::Error("the step state's estimate is not finite");
   }
-  for (const auto& cluster : state.clusters) {
+  for (const JudgedCluster& cluster : state.clusters) {
     if (!fits(cluster.session_a, num_sessions) || !fits(cluster.session_b, num_sessions)) {
       return Status::Error("a cluster names an unknown session");
     }
@@ -359,110 +293,48 @@ Status Irrr<Pose>::RestoreStepState(IrrrStepState<Pose> state) {
       }
     }
   }
-  Consensus<Pose>& c = st.consensus;
-  c.links.clear();
-  c.session_a.clear();
-  c.session_b.clear();
-  c.in_r.clear();
-  c.in_good.clear();
-  c.in_reject.clear();
-  c.opponents.clear();
-  c.redundancy.clear();
-  st.warm_engine.Clear();
-  for (auto& cluster : state.clusters) {
-    const int k = c.AddCluster(cluster.session_a, cluster.session_b);
-    c.links[k] = std::move(cluster.links);
-    c.in_r[k] = cluster.in_r;
-    c.in_good[k] = cluster.in_good;
-    c.in_reject[k] = cluster.in_reject;
-    c.opponents[k] = std::move(cluster.opponents);
-    c.redundancy[k] = {cluster.redundancy_chi2, cluster.redundancy_dof};
-    st.warm_engine.Restore(k, cluster.accepted_variance, cluster.closed);
-  }
-  c.step = state.steps;
-  c.memo.clear();
-  c.memo_order.clear();
-  ++c.warm_version;
-  st.decisions = std::move(state.decisions);
+  st.book.decisions = std::move(state.decisions);
+  st.book.clusters = std::move(state.clusters);
+  st.book.step = state.steps;
   st.estimate = std::move(state.estimate);
-  st.consensus_of = std::move(state.cluster_of);
+  st.cluster_of = std::move(state.cluster_of);
   st.next_closed = static_cast<size_t>(state.judged);
+  if (st.IsWarm()) st.warm.Restore();
   return Status::Ok();
-}
-
-template <class Pose>
-std::vector<int> Irrr<Pose>::Components() const {
-  const State& st = *state_;
-  std::vector<char> active(st.graph.num_edges(), 0);
-  for (int c = 0; c < static_cast<int>(st.consensus.in_good.size()); ++c) {
-    if (!st.consensus.in_good[c]) continue;
-    for (int e : st.consensus.links[c]) active[e] = 1;
-  }
-  return SessionComponents(st.graph, active);
 }
 
 template <class Pose>
 std::vector<LoopDecision> RunBatchRrr(const PoseGraph<Pose>& graph,
                                       const IrrrOptions& options,
-                                      std::vector<Pose>* estimate,
-                                      const ParallelFor& parallel_for,
-                                      int workers) {
+                                      std::vector<Pose>* estimate) {
   IRRR_CHECK(options.Validate().ok());
-  std::vector<LoopDecision> decisions(graph.num_edges());
-  Consensus<Pose> consensus;
-  consensus.parallel_for = parallel_for;
-  consensus.workers = workers;
-  consensus.graph = &graph;
-  consensus.options = &options;
-  consensus.decisions = &decisions;
-  const std::vector<Pose> dead_reckoning = graph.OdometryEstimate();
-  consensus.dead_reckoning = &dead_reckoning;
-  consensus.odometry_of_session.resize(graph.num_sessions());
-
+  DecisionBook book;
+  book.decisions.resize(graph.num_edges());
   // Cluster in arrival order: a loop arrives with the later of its two poses.
   std::vector<int> loops;
   for (int e = 0; e < graph.num_edges(); ++e) {
-    if (graph.edge(e).kind == EdgeKind::kOdometry) {
-      consensus.odometry_of_session[graph.vertex(graph.edge(e).to).session].push_back(e);
-    } else {
-      loops.push_back(e);
-    }
+    if (graph.edge(e).kind == EdgeKind::kLoop) loops.push_back(e);
   }
   auto arrival = [&graph](int e) { return std::max(graph.edge(e).from, graph.edge(e).to); };
   std::stable_sort(
       loops.begin(), loops.end(), [&](int a, int b) { return arrival(a) < arrival(b); });
-  LoopClusterer clusterer(options.cluster_gap, options.max_cluster_size);
+  LoopClusterer clusterer(options.cluster_gap);
   for (int e : loops) {
     const Vertex& from = graph.vertex(graph.edge(e).from);
     const Vertex& to = graph.vertex(graph.edge(e).to);
     const int c = clusterer.AddLink(e, from.session, from.stamp, to.session, to.stamp);
-    if (c >= static_cast<int>(consensus.links.size())) {
-      consensus.AddCluster(clusterer.cluster(c).session_a, clusterer.cluster(c).session_b);
+    if (c >= static_cast<int>(book.clusters.size())) {
+      book.AddCluster(clusterer.cluster(c).session_a, clusterer.cluster(c).session_b);
     }
-    consensus.links[c].push_back(e);
-    decisions[e].cluster = c;
+    book.clusters[c].links.push_back(e);
+    book.decisions[e].cluster = c;
   }
-  clusterer.CloseAll();
-
-  // Clusters split off by Algorithm 1 are appended and judged in the same pass. Their first
-  // optimizations are independent: prefetched a batch at a time.
-  const int batch = 2 * std::max(workers, 1);
-  for (int c = 0; c < clusterer.num_clusters(); ++c) {
-    if (c % batch == 0) {
-      std::vector<typename Consensus<Pose>::Problem> next;
-      for (int k = c; k < std::min(c + batch, clusterer.num_clusters()); ++k) {
-        next.push_back(consensus.Prepare(consensus.SessionsOf({k}), {k}, false));
-      }
-      consensus.Prefetch(next);
-    }
-    consensus.IntraCluster(c, nullptr);
-  }
-  const std::vector<char> all_sessions(graph.num_sessions(), 1);
-  consensus.Algorithm3(all_sessions, /*incremental=*/false, nullptr);
-  const auto solution =
-      consensus.Solve(all_sessions, consensus.GoodWithin(all_sessions), false, &dead_reckoning);
-  if (estimate != nullptr) *estimate = solution.estimate;
-  return decisions;
+  const std::vector<Pose> dead_reckoning = graph.OdometryEstimate();
+  std::vector<Pose> optimum = dead_reckoning;
+  PaperEngine<Pose> engine(&graph, &options, &book, &optimum, &dead_reckoning);
+  engine.RunBatch();
+  if (estimate != nullptr) *estimate = std::move(optimum);
+  return book.decisions;
 }
 
 template <class Pose>
@@ -556,11 +428,8 @@ template <class Pose>
 std::vector<LoopDecision> RunIncrementalIrrr(const PoseGraph<Pose>& graph,
                                              const IrrrOptions& options,
                                              std::vector<Pose>* estimate,
-                                             std::vector<StepResult>* steps,
-                                             const ParallelFor& parallel_for,
-                                             int workers) {
+                                             std::vector<StepResult>* steps) {
   Irrr<Pose> irrr(options);
-  irrr.SetParallelFor(parallel_for, workers);
   GraphReplay<Pose> replay(graph, &irrr);
   auto run_steps = [&]() {
     while (irrr.HasPendingStep()) {
@@ -585,20 +454,18 @@ template class GraphReplay<Pose3>;
 template std::vector<LoopDecision> RunIncrementalIrrr<Pose2>(const PoseGraph<Pose2>&,
                                                              const IrrrOptions&,
                                                              std::vector<Pose2>*,
-                                                             std::vector<StepResult>*,
-                                                             const ParallelFor&,
-                                                             int);
+                                                             std::vector<StepResult>*);
 template std::vector<LoopDecision> RunIncrementalIrrr<Pose3>(const PoseGraph<Pose3>&,
                                                              const IrrrOptions&,
                                                              std::vector<Pose3>*,
-                                                             std::vector<StepResult>*,
-                                                             const ParallelFor&,
-                                                             int);
+                                                             std::vector<StepResult>*);
 template std::vector<ArrivalEvent> ArrivalOrder<Pose2>(const PoseGraph<Pose2>&);
 template std::vector<ArrivalEvent> ArrivalOrder<Pose3>(const PoseGraph<Pose3>&);
-template std::vector<LoopDecision> RunBatchRrr<Pose2>(
-    const PoseGraph<Pose2>&, const IrrrOptions&, std::vector<Pose2>*, const ParallelFor&, int);
-template std::vector<LoopDecision> RunBatchRrr<Pose3>(
-    const PoseGraph<Pose3>&, const IrrrOptions&, std::vector<Pose3>*, const ParallelFor&, int);
+template std::vector<LoopDecision> RunBatchRrr<Pose2>(const PoseGraph<Pose2>&,
+                                                      const IrrrOptions&,
+                                                      std::vector<Pose2>*);
+template std::vector<LoopDecision> RunBatchRrr<Pose3>(const PoseGraph<Pose3>&,
+                                                      const IrrrOptions&,
+                                                      std::vector<Pose3>*);
 
 }  // namespace irrr

@@ -107,6 +107,7 @@ Status PoseGraph<Pose>::AddPose(int session,
   }
 
   const int index = num_vertices();
+  odometry_into_.push_back(first ? -1 : num_edges());
   if (!first) {
     Edge<Pose> edge;
     edge.from = owner.vertices.back();

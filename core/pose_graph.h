@@ -82,6 +82,10 @@ class PoseGraph {
   const std::vector<Edge<Pose>>& edges() const { return edges_; }
   const std::vector<Pose>& initial_estimate() const { return initial_estimate_; }
 
+  // The odometry edge into vertex `index` (from its predecessor in its session), or -1 for a
+  // session's first pose.
+  int OdometryInto(int index) const { return odometry_into_[index]; }
+
   // Vertex index for a caller's id, or -1.
   int FindVertex(int64_t vertex_id) const;
   // Session index for a caller's id, or -1.
@@ -95,6 +99,7 @@ class PoseGraph {
   std::vector<Session> sessions_;
   std::vector<Edge<Pose>> edges_;
   std::vector<Pose> initial_estimate_;
+  std::vector<int> odometry_into_;  // per vertex
   std::unordered_map<int64_t, int> vertex_index_;
   std::unordered_map<int64_t, int> session_index_;
 };

@@ -13,6 +13,7 @@
 //    linear-Gaussian problem it equals the chi2 increase of the optimum exactly; on a pose graph
 //    it costs a few sparse solves instead of a nonlinear optimization.
 
+#include <limits>
 #include <vector>
 
 #include <Eigen/Core>
@@ -34,6 +35,20 @@ double ChiSquareMedian(double dof);
 // allows for the factor's own uncertainty, which dominates for large dof: a cluster of 600 links
 // has a chi2 quantile only 10% above its mean, less than the factor varies along a trajectory.
 double ScaledChiSquareThreshold(double alpha, double dof, double variance, double variance_dof);
+
+// The thresholds of one set of tests: chi-square quantiles at confidence `alpha`, scaled by the
+// variance factor `variance` known with `variance_dof` degrees of freedom (infinite: exactly, as
+// the paper's tests with the information as given).
+struct TestThresholds {
+  double alpha = 0.95;
+  double variance = 1.0;
+  double variance_dof = std::numeric_limits<double>::infinity();
+
+  // The threshold of a statistic with `dof` degrees of freedom.
+  double Of(double dof) const {
+    return ScaledChiSquareThreshold(alpha, dof, variance, variance_dof);
+  }
+};
 
 // One piece of redundancy: a chi2 at an optimum and its degrees of freedom (residual rows minus
 // free parameters). Under a variance factor s, chi2 ~ s * chi-square(dof).

@@ -12,7 +12,6 @@
 #include <fmt/core.h>
 #include <spdlog/spdlog.h>
 
-#include "clients/thread_pool.h"
 #include "daemon/sequencer.h"
 #include "daemon/snapshot.h"
 #include "daemon/stamp_merger.h"
@@ -357,12 +356,9 @@ struct Service::State {
         sequencer(SequencerLimits{d.limits.max_held,
                                   std::chrono::milliseconds(d.resync.interval_ms),
                                   std::chrono::milliseconds(d.resync.give_up_ms)}),
-        pool(d.threads > 0 ? d.threads : ThreadPool::DefaultThreads()),
         se2(o),
         se3(o),
         start_utime(NowUtime()) {
-    se2.irrr.SetParallelFor(pool.AsParallelFor(), pool.size());
-    se3.irrr.SetParallelFor(pool.AsParallelFor(), pool.size());
     if (d.merge.window_ms > 0) {
       merger = std::make_unique<StampMerger<Input>>(std::chrono::milliseconds(d.merge.window_ms),
                                                     d.merge.senders);
@@ -411,8 +407,7 @@ struct Service::State {
   std::mutex publish_mutex;
   int64_t next_seq = 0;
 
-  // Worker only (the pool runs the engines' independent checks for it).
-  ThreadPool pool;
+  // Worker only.
   Engine<Pose2> se2;
   Engine<Pose3> se3;
   struct SessionRef {
@@ -1107,7 +1102,7 @@ struct Service::State {
     c.closed_utime = closed_utime;
     c.solves = step.solves;
     c.decide_ms = static_cast<float>(decide_ms);
-    c.chi2 = step.final_summary.final_chi2;
+    c.chi2 = step.chi2;
     std::vector<verdicts_t> verdicts;
     std::vector<solution_t> chunks;
     int state_changes = 0;

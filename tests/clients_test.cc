@@ -88,24 +88,11 @@ TEST_CASE("config/irrrd.json writes out every default of IrrrOptions", "[config]
 
 TEST_CASE("Every key of the irrr section is read into its field", "[config]") {
   const json section = {
-      {"engine", "cold"},
+      {"engine", "paper"},
       {"alpha", 0.99},
       {"variance_factor", 0.5},
       {"cluster_gap", 12.5},
       {"graph_dof", "exact"},
-      {"require_each_cluster_consistent", false},
-      {"prune_failing_clusters", false},
-      {"elimination_lookahead", 1},
-      {"split_failing_links", false},
-      {"settle_undecided", false},
-      {"revive_opponents", false},
-      {"retry_within_step", false},
-      {"local_problems", false},
-      {"warm_start", true},
-      {"reuse_solves", false},
-      {"reuse_analysis", false},
-      {"lazy_lookahead", false},
-      {"max_cluster_size", 40},
       {"optimizer",
        {{"algorithm", "levenberg_marquardt"},
         {"max_iterations", 7},
@@ -120,24 +107,11 @@ TEST_CASE("Every key of the irrr section is read into its field", "[config]") {
   const Status status = ParseIrrrOptions(section, &options);
   INFO(status.message());
   REQUIRE(status.ok());
-  CHECK(options.engine == IrrrEngine::kCold);
+  CHECK(options.engine == IrrrEngine::kPaper);
   CHECK(options.alpha == 0.99);
   CHECK(options.variance_factor == 0.5);
   CHECK(options.cluster_gap == 12.5);
   CHECK(options.graph_dof == GraphDegreesOfFreedom::kExact);
-  CHECK_FALSE(options.require_each_cluster_consistent);
-  CHECK_FALSE(options.prune_failing_clusters);
-  CHECK(options.elimination_lookahead == 1);
-  CHECK(options.max_cluster_size == 40);
-  CHECK_FALSE(options.split_failing_links);
-  CHECK_FALSE(options.settle_undecided);
-  CHECK_FALSE(options.revive_opponents);
-  CHECK_FALSE(options.retry_within_step);
-  CHECK_FALSE(options.local_problems);
-  CHECK_FALSE(options.reuse_solves);
-  CHECK_FALSE(options.reuse_analysis);
-  CHECK_FALSE(options.lazy_lookahead);
-  CHECK(options.warm_start);
   CHECK(options.optimizer.algorithm == OptimizerAlgorithm::kLevenbergMarquardt);
   CHECK(options.optimizer.max_iterations == 7);
   CHECK(options.optimizer.function_tolerance == 1e-6);
@@ -170,13 +144,11 @@ TEST_CASE("A value of the wrong type is an error naming its path and the value",
         "irrr.optimizer.max_iterations: expected an integer, got \"ten\"");
   CHECK(ParseError(json{{"optimizer", {{"max_iterations", 2.5}}}}) ==
         "irrr.optimizer.max_iterations: expected an integer, got 2.5");
-  CHECK(ParseError(json{{"elimination_lookahead", 10000000000}}) ==
-        "irrr.elimination_lookahead: integer out of range: 10000000000");
+  CHECK(ParseError(json{{"optimizer", {{"max_iterations", 10000000000}}}}) ==
+        "irrr.optimizer.max_iterations: integer out of range: 10000000000");
   CHECK(ParseError(json{{"alpha", "high"}}) == "irrr.alpha: expected a number, got \"high\"");
   CHECK(ParseError(json{{"cluster_gap", nullptr}}) ==
         "irrr.cluster_gap: expected a number, got null");
-  CHECK(ParseError(json{{"prune_failing_clusters", 1}}) ==
-        "irrr.prune_failing_clusters: expected true or false, got 1");
   CHECK(ParseError(json{{"graph_dof", "approximate"}}) ==
         "irrr.graph_dof: expected \"residual_rows\" or \"exact\", got \"approximate\"");
   CHECK(ParseError(json{{"optimizer", {{"algorithm", 1}}}}) ==
@@ -191,8 +163,8 @@ TEST_CASE("Values out of range are rejected by IrrrOptions::Validate", "[config]
   CHECK_THAT(alpha, StartsWith("irrr: ") && Contains("alpha"));
   const std::string iterations = ParseError(json{{"optimizer", {{"max_iterations", 0}}}});
   CHECK_THAT(iterations, StartsWith("irrr: optimizer: ") && Contains("max_iterations"));
-  CHECK_THAT(ParseError(json{{"elimination_lookahead", 0}}),
-             StartsWith("irrr: ") && Contains("elimination_lookahead"));
+  CHECK_THAT(ParseError(json{{"variance_factor", -1}}),
+             StartsWith("irrr: ") && Contains("variance_factor"));
   CHECK_THAT(ParseError(json{{"cluster_gap", -1}}),
              StartsWith("irrr: ") && Contains("cluster_gap"));
 }

@@ -8,6 +8,7 @@
 
 #include "core/graph_io.h"
 #include "core/outliers.h"
+#include "core/test_statistics.h"
 #include "tests/corrupted_graph.h"
 #include "tests/synthetic_graph.h"
 
@@ -21,9 +22,11 @@ using testing::NoisyWorld;
 using testing::RelativeDifference;
 using testing::SyntheticOptions;
 
-// Robust and clean optima agree to the optimizer's convergence, far below the noise.
-constexpr double kSameEstimateM = 1e-5;
-constexpr double kSameEstimateRad = 1e-6;
+// The warm engine's estimate is the optimum of what it accepted to within its solver's
+// relinearization bounds (measured: up to 1.5e-5 m and 3e-6 rad on these graphs), far below the
+// noise (0.05 m, 0.01 rad).
+constexpr double kSameEstimateM = 1e-4;
+constexpr double kSameEstimateRad = 1e-5;
 
 TEST_CASE("Chi-square quantiles match published tables", "[irrr]") {
   // Values from standard chi-square tables (e.g. NIST/SEMATECH e-Handbook 1.3.6.7.4).
@@ -70,10 +73,14 @@ void CheckNoOutlierAccepted(const Corrupted<Pose>& corrupted,
 // started from it has nothing left to do (chi2 and poses unchanged, relative to pose 0). Started
 // from it rather than from dead reckoning, because sessions that start unaligned can lead
 // Gauss-Newton to another, worse minimum.
+// With `poses` false only chi2 is compared: the paper engine may accept wrong loops, and the
+// optimum with them is flat enough that solves stopping at the optimizer's tolerances lie
+// millimetres apart.
 template <class Pose>
 void CheckEstimateIsOptimumOfAccepted(const Corrupted<Pose>& corrupted,
                                       const std::vector<LoopDecision>& decisions,
-                                      const std::vector<Pose>& robust) {
+                                      const std::vector<Pose>& robust,
+                                      bool poses = true) {
   std::vector<char> accepted(corrupted.graph.num_edges(), 0);
   for (int e = 0; e < corrupted.graph.num_edges(); ++e) {
     accepted[e] = corrupted.graph.edge(e).kind == EdgeKind::kOdometry ||
@@ -86,6 +93,7 @@ void CheckEstimateIsOptimumOfAccepted(const Corrupted<Pose>& corrupted,
   // Converged solves agree to the optimizer's tolerances, far below the noise.
   constexpr double kSameChi2 = 1e-6;
   CHECK(summary.final_chi2 >= summary.initial_chi2 * (1.0 - kSameChi2));
+  if (!poses) return;
   double translation_m = 0.0;
   double rotation_rad = 0.0;
   RelativeDifference(robust, polished, 0, &translation_m, &rotation_rad);
@@ -102,7 +110,7 @@ IrrrOptions SyntheticIrrrOptions() {
 }
 
 TEMPLATE_TEST_CASE(
-    "iRRR and RRR accept no outlier of any kind and return the optimum of what they accept",
+    "iRRR accepts no outlier of any kind; iRRR and RRR return the optimum of what they accept",
     "[irrr][slow]",
     Pose2,
     Pose3) {
@@ -127,11 +135,10 @@ TEMPLATE_TEST_CASE(
     CheckNoOutlierAccepted(corrupted, decisions, "incremental, " + what);
     CheckEstimateIsOptimumOfAccepted(corrupted, decisions, estimate);
   }
-  SECTION("batch RRR") {
+  SECTION("batch RRR (the paper's tests, which are not held to precision 1)") {
     std::vector<TestType> estimate;
     const auto decisions = RunBatchRrr(corrupted.graph, options, &estimate);
-    CheckNoOutlierAccepted(corrupted, decisions, "batch, " + what);
-    CheckEstimateIsOptimumOfAccepted(corrupted, decisions, estimate);
+    CheckEstimateIsOptimumOfAccepted(corrupted, decisions, estimate, /*poses=*/false);
   }
 }
 
@@ -185,9 +192,13 @@ TEMPLATE_TEST_CASE(
   }
 }
 
-// Steps are all bit-identical here: the same inputs and the same state give the same numbers.
+// The same decisions, and statistics and poses within `tolerance` (relative, and metres or
+// radians): 0 for the paper engine, whose steps start from dead reckoning, so that the same
+// inputs and state give the same numbers bit for bit; the warm engine rebuilds its good-set
+// estimate from the restored poses, which agrees with the updated one to the rounding of the
+// updates and the solver's relinearization bounds.
 template <class Pose>
-void CheckSameIrrr(const Irrr<Pose>& a, const Irrr<Pose>& b) {
+void CheckSameIrrr(const Irrr<Pose>& a, const Irrr<Pose>& b, double tolerance) {
   REQUIRE(a.num_steps() == b.num_steps());
   REQUIRE(a.graph().num_edges() == b.graph().num_edges());
   for (int e = 0; e < a.graph().num_edges(); ++e) {
@@ -197,15 +208,19 @@ void CheckSameIrrr(const Irrr<Pose>& a, const Irrr<Pose>& b) {
     CHECK(x.state == y.state);
     CHECK(x.cluster == y.cluster);
     CHECK(x.step == y.step);
-    CHECK((x.chi2 == y.chi2 || (std::isnan(x.chi2) && std::isnan(y.chi2))));
+    CHECK((std::abs(x.chi2 - y.chi2) <= tolerance * std::abs(x.chi2) ||
+           (std::isnan(x.chi2) && std::isnan(y.chi2))));
   }
   REQUIRE(a.estimate().size() == b.estimate().size());
   for (size_t v = 0; v < a.estimate().size(); ++v) {
     INFO("vertex " << v);
-    CHECK((a.estimate()[v].translation() - b.estimate()[v].translation()).norm() == 0.0);
-    CHECK((a.estimate()[v].Log() - b.estimate()[v].Log()).norm() == 0.0);
+    CHECK((a.estimate()[v].translation() - b.estimate()[v].translation()).norm() <= tolerance);
+    CHECK((a.estimate()[v].Log() - b.estimate()[v].Log()).norm() <= tolerance);
   }
 }
+
+// Measured: 1e-6 and below; the solver's relinearization bounds would allow more.
+constexpr double kRestoredWarmTolerance = 1e-4;
 
 TEMPLATE_TEST_CASE(
     "An Irrr fed the inputs without their steps, given the step state, goes on as the original",
@@ -222,8 +237,9 @@ TEMPLATE_TEST_CASE(
   const PoseGraph<TestType>& graph = corrupted.graph;
   const std::vector<ArrivalEvent> events = ArrivalOrder(graph);
   IrrrOptions options = SyntheticIrrrOptions();
-  options.engine = GENERATE(IrrrEngine::kWarm, IrrrEngine::kCold);
-  INFO((options.engine == IrrrEngine::kWarm ? "warm" : "cold") << " engine");
+  options.engine = GENERATE(IrrrEngine::kWarm, IrrrEngine::kPaper);
+  INFO(IrrrEngineName(options.engine) << " engine");
+  const double tolerance = options.engine == IrrrEngine::kWarm ? kRestoredWarmTolerance : 0.0;
   auto run_steps = [](Irrr<TestType>* irrr) {
     while (irrr->HasPendingStep()) irrr->RunStep();
   };
@@ -245,7 +261,7 @@ TEMPLATE_TEST_CASE(
   CHECK(restored.num_steps() == 0);
   REQUIRE(restored.RestoreStepState(original.StepState()).ok());
   CHECK(!restored.HasPendingStep());
-  CheckSameIrrr(original, restored);
+  CheckSameIrrr(original, restored, tolerance);
 
   for (size_t k = cut; k < events.size(); ++k) {
     original_replay.Apply(events[k]);
@@ -257,13 +273,11 @@ TEMPLATE_TEST_CASE(
   run_steps(&original);
   restored.Flush();
   run_steps(&restored);
-  CheckSameIrrr(original, restored);
+  CheckSameIrrr(original, restored, tolerance);
   // The case exercises what the state must carry: decisions that are not just acceptances;
-  // clusters split off (cold engine); the redundancy and acceptance variance factors (warm).
+  // the redundancy and acceptance variance factors (warm engine).
   const IrrrStepState<TestType> state = original.StepState();
-  if (options.engine == IrrrEngine::kCold) {
-    CHECK(state.clusters.size() > state.cluster_of.size());
-  } else {
+  if (options.engine == IrrrEngine::kWarm) {
     int with_redundancy = 0;
     int accepted_at = 0;
     for (const auto& cluster : state.clusters) {

@@ -1,0 +1,322 @@
+#include "core/good_set.h"
+
+#include <algorithm>
+
+#include "core/local_problem.h"
+#include "core/optimizer.h"
+
+namespace irrr {
+
+template <class Pose>
+struct GoodSet<Pose>::Impl {
+  Impl(const PoseGraph<Pose>* g, std::vector<Pose>* e, const IncrementalSolverOptions& o)
+      : graph(g), estimate(e), options(o) {}
+
+  IncrementalSolver<Pose>* SolverOfVertex(int v) const {
+    const int c = component_of_session[graph->vertex(v).session];
+    if (trial_merged != nullptr && (c == merge_a || c == merge_b)) return trial_merged.get();
+    return solvers[c].get();
+  }
+
+  void Publish(const IncrementalSolver<Pose>& solver) {
+    for (int v : solver.vertices()) (*estimate)[v] = solver.estimate(v);
+  }
+
+  void Retire(std::unique_ptr<IncrementalSolver<Pose>>* solver) {
+    if (*solver == nullptr) return;
+    retired_solves += (*solver)->counters().solves;
+    solver->reset();
+  }
+
+  std::vector<int> SessionsOf(int component) const {
+    std::vector<int> sessions;
+    for (int s = 0; s < static_cast<int>(component_of_session.size()); ++s) {
+      if (component_of_session[s] == component) sessions.push_back(s);
+    }
+    return sessions;
+  }
+
+  // A solver for the poses of `sessions` (in session order) with odometry and `loops`, started
+  // from `start` (the sessions in one frame), its earliest session's first pose held at the
+  // identity: `start` is moved rigidly so that it is, then optimized by a batch solve (which
+  // controls its steps, for starts far from the optimum) before the solver takes over.
+  std::unique_ptr<IncrementalSolver<Pose>> Build(const std::vector<int>& sessions,
+                                                 const std::vector<int>& loops,
+                                                 std::vector<Pose>* start) {
+    std::vector<int> vertices;
+    std::vector<int> edges;
+    for (int s : sessions) {
+      for (int v : graph->session(s).vertices) {
+        vertices.push_back(v);
+        if (graph->OdometryInto(v) >= 0) edges.push_back(graph->OdometryInto(v));
+      }
+    }
+    edges.insert(edges.end(), loops.begin(), loops.end());
+    const Pose origin_T_anchor = (*start)[vertices.front()].Inverse();
+    for (int v : vertices) (*start)[v] = origin_T_anchor * (*start)[v];
+    if (!loops.empty()) {
+      std::vector<char> active(graph->num_edges(), 0);
+      for (int e : edges) active[e] = 1;
+      batch.Solve(*graph, active, start);
+    }
+    auto solver = std::make_unique<IncrementalSolver<Pose>>(graph, options);
+    solver->Reset(vertices, edges, *start);
+    return solver;
+  }
+
+  const PoseGraph<Pose>* graph;
+  std::vector<Pose>* estimate;
+  IncrementalSolverOptions options;
+  std::vector<std::unique_ptr<IncrementalSolver<Pose>>> solvers;  // per component id
+  std::vector<int> component_of_session;                          // -1: no pose yet
+  Optimizer<Pose> batch;
+  Counters counters;
+  long retired_solves = 0;
+
+  // The open trial: in one component (trial_component), or a merge of two (trial_merged).
+  bool trial_open = false;
+  int trial_component = -1;
+  std::unique_ptr<IncrementalSolver<Pose>> trial_merged;
+  int merge_a = -1;
+  int merge_b = -1;
+};
+
+template <class Pose>
+GoodSet<Pose>::GoodSet(const PoseGraph<Pose>* graph,
+                       std::vector<Pose>* estimate,
+                       const IncrementalSolverOptions& options)
+    : impl_(std::make_unique<Impl>(graph, estimate, options)) {}
+
+template <class Pose>
+GoodSet<Pose>::~GoodSet() = default;
+
+template <class Pose>
+void GoodSet<Pose>::AddPose(int vertex) {
+  Impl& m = *impl_;
+  IRRR_CHECK(!m.trial_open);
+  const PoseGraph<Pose>& graph = *m.graph;
+  if (static_cast<int>(m.estimate->size()) < graph.num_vertices()) {
+    m.estimate->resize(graph.num_vertices());
+  }
+  if (static_cast<int>(m.component_of_session.size()) < graph.num_sessions()) {
+    m.component_of_session.resize(graph.num_sessions(), -1);
+  }
+  const int session = graph.vertex(vertex).session;
+  const int odometry = graph.OdometryInto(vertex);
+  if (odometry < 0) {
+    (*m.estimate)[vertex] = Pose();
+    m.component_of_session[session] = static_cast<int>(m.solvers.size());
+    m.solvers.push_back(std::make_unique<IncrementalSolver<Pose>>(m.graph, m.options));
+    m.solvers.back()->Reset({vertex}, {}, *m.estimate);
+    return;
+  }
+  IncrementalSolver<Pose>& solver = *m.solvers[m.component_of_session[session]];
+  solver.Extend(vertex, odometry);
+  (*m.estimate)[vertex] = solver.estimate(vertex);
+}
+
+template <class Pose>
+int GoodSet<Pose>::ComponentOf(int session) const {
+  const auto& of = impl_->component_of_session;
+  return session < static_cast<int>(of.size()) ? of[session] : -1;
+}
+
+template <class Pose>
+std::vector<int> GoodSet<Pose>::SessionsOf(int component) const {
+  return impl_->SessionsOf(component);
+}
+
+template <class Pose>
+std::vector<int> GoodSet<Pose>::Components() const {
+  const Impl& m = *impl_;
+  std::vector<int> out(m.graph->num_sessions(), -1);
+  std::vector<int> number(m.solvers.size(), -1);
+  int next = 0;
+  for (int s = 0; s < m.graph->num_sessions(); ++s) {
+    const int c = ComponentOf(s);
+    if (c < 0) {
+      out[s] = next++;  // no pose yet: a component of its own
+      continue;
+    }
+    if (number[c] < 0) number[c] = next++;
+    out[s] = number[c];
+  }
+  return out;
+}
+
+template <class Pose>
+Eigen::MatrixXd GoodSet<Pose>::Covariance(int component, const std::vector<int>& vertices) const {
+  return impl_->solvers[component]->Covariance(vertices);
+}
+
+template <class Pose>
+typename GoodSet<Pose>::Trial GoodSet<Pose>::Try(const std::vector<int>& loops,
+                                                 double alignment_cap) {
+  Impl& m = *impl_;
+  IRRR_CHECK(!m.trial_open && !loops.empty());
+  const PoseGraph<Pose>& graph = *m.graph;
+  ++m.counters.trials;
+  std::vector<int> components;
+  for (int e : loops) {
+    for (int v : {graph.edge(e).from, graph.edge(e).to}) {
+      components.push_back(m.component_of_session[graph.vertex(v).session]);
+    }
+  }
+  std::sort(components.begin(), components.end());
+  components.erase(std::unique(components.begin(), components.end()), components.end());
+  IRRR_CHECK(components.size() <= 2);
+  Trial trial;
+  if (components.size() == 1) {
+    IncrementalSolver<Pose>& solver = *m.solvers[components[0]];
+    const double before = solver.chi2();
+    solver.Checkpoint();
+    const IncrementalSummary summary = solver.Add(loops);
+    m.counters.iterations += summary.iterations;
+    if (!summary.ok) {
+      solver.Rollback();
+      return trial;
+    }
+    m.trial_open = true;
+    m.trial_component = components[0];
+    trial.ok = true;
+    trial.increase = solver.chi2() - before;
+    trial.dof = Pose::kDim * static_cast<double>(loops.size());
+    return trial;
+  }
+  // Two components: the one holding the earlier session keeps its frame.
+  int a = components[0];
+  int b = components[1];
+  auto earliest = [&m](int c) { return m.SessionsOf(c).front(); };
+  if (earliest(b) < earliest(a)) std::swap(a, b);
+  ++m.counters.merges;
+  std::vector<int> sessions = m.SessionsOf(a);
+  const std::vector<int> sessions_b = m.SessionsOf(b);
+  sessions.insert(sessions.end(), sessions_b.begin(), sessions_b.end());
+  std::sort(sessions.begin(), sessions.end());
+  std::vector<int> merged_loops = loops;
+  for (int c : {a, b}) {
+    for (int e : m.solvers[c]->edges()) {
+      if (graph.edge(e).kind == EdgeKind::kLoop) merged_loops.push_back(e);
+    }
+  }
+  std::vector<Pose> start = *m.estimate;
+  std::vector<int> group_of_session(graph.num_sessions(), -1);
+  for (int s = 0; s < graph.num_sessions(); ++s) group_of_session[s] = ComponentOf(s);
+  for (int s = 0; s < graph.num_sessions(); ++s) {
+    if (group_of_session[s] < 0) group_of_session[s] = static_cast<int>(m.solvers.size()) + s;
+  }
+  // One frame for both (Build then moves it so that a's anchor, the earliest session's first
+  // pose, is at the identity again).
+  AlignFrames(graph, loops, group_of_session, alignment_cap, &start);
+  m.trial_merged = m.Build(sessions, merged_loops, &start);
+  const double before = m.solvers[a]->chi2() + m.solvers[b]->chi2();
+  trial.ok = true;
+  trial.merges = true;
+  trial.increase = m.trial_merged->chi2() - before;
+  trial.dof = Pose::kDim * (static_cast<double>(loops.size()) - 1.0);
+  m.trial_open = true;
+  m.merge_a = a;
+  m.merge_b = b;
+  return trial;
+}
+
+template <class Pose>
+void GoodSet<Pose>::Commit() {
+  Impl& m = *impl_;
+  IRRR_CHECK(m.trial_open);
+  m.trial_open = false;
+  if (m.trial_merged == nullptr) {
+    IncrementalSolver<Pose>& solver = *m.solvers[m.trial_component];
+    solver.Commit();
+    m.Publish(solver);
+    return;
+  }
+  for (int s : m.SessionsOf(m.merge_b)) m.component_of_session[s] = m.merge_a;
+  m.Retire(&m.solvers[m.merge_a]);
+  m.Retire(&m.solvers[m.merge_b]);
+  m.solvers[m.merge_a] = std::move(m.trial_merged);
+  m.Publish(*m.solvers[m.merge_a]);
+  m.merge_a = m.merge_b = -1;
+}
+
+template <class Pose>
+void GoodSet<Pose>::Rollback() {
+  Impl& m = *impl_;
+  IRRR_CHECK(m.trial_open);
+  m.trial_open = false;
+  if (m.trial_merged == nullptr) {
+    m.solvers[m.trial_component]->Rollback();
+    return;
+  }
+  m.Retire(&m.trial_merged);
+  m.merge_a = m.merge_b = -1;
+}
+
+template <class Pose>
+double GoodSet<Pose>::EdgeChi2(int edge) const {
+  const Impl& m = *impl_;
+  const Edge<Pose>& e = m.graph->edge(edge);
+  const IncrementalSolver<Pose>* from = m.SolverOfVertex(e.from);
+  const IncrementalSolver<Pose>* to = m.SolverOfVertex(e.to);
+  IRRR_CHECK(from == to);
+  return irrr::EdgeChi2(e, from->estimate(e.from), from->estimate(e.to));
+}
+
+template <class Pose>
+void GoodSet<Pose>::Rebuild(const std::vector<int>& good_loops, double alignment_cap) {
+  Impl& m = *impl_;
+  IRRR_CHECK(!m.trial_open);
+  const PoseGraph<Pose>& graph = *m.graph;
+  ++m.counters.rebuilds;
+  std::vector<Pose> start = *m.estimate;
+  std::vector<int> group_of_session(graph.num_sessions());
+  for (int s = 0; s < graph.num_sessions(); ++s) {
+    group_of_session[s] =
+        ComponentOf(s) >= 0 ? ComponentOf(s) : static_cast<int>(m.solvers.size()) + s;
+  }
+  AlignFrames(graph, good_loops, group_of_session, alignment_cap, &start);
+  std::vector<char> active(graph.num_edges(), 0);
+  for (int e : good_loops) active[e] = 1;
+  const std::vector<int> component = SessionComponents(graph, active);
+  for (auto& solver : m.solvers) m.Retire(&solver);
+  m.solvers.clear();
+  m.component_of_session.assign(graph.num_sessions(), -1);
+  std::vector<int> id_of(graph.num_sessions(), -1);
+  for (int s = 0; s < graph.num_sessions(); ++s) {
+    if (graph.session(s).vertices.empty()) continue;
+    if (id_of[component[s]] < 0) {
+      id_of[component[s]] = static_cast<int>(m.solvers.size());
+      m.solvers.emplace_back();
+    }
+    m.component_of_session[s] = id_of[component[s]];
+  }
+  for (int c = 0; c < static_cast<int>(m.solvers.size()); ++c) {
+    const std::vector<int> sessions = m.SessionsOf(c);
+    std::vector<int> loops;
+    for (int e : good_loops) {
+      if (m.component_of_session[graph.vertex(graph.edge(e).from).session] == c) loops.push_back(e);
+    }
+    m.solvers[c] = m.Build(sessions, loops, &start);
+    m.Publish(*m.solvers[c]);
+  }
+}
+
+template <class Pose>
+const IncrementalSolver<Pose>& GoodSet<Pose>::Solver(int component) const {
+  return *impl_->solvers[component];
+}
+
+template <class Pose>
+typename GoodSet<Pose>::Counters GoodSet<Pose>::counters() const {
+  Counters counters = impl_->counters;
+  counters.solves = impl_->retired_solves;
+  for (const auto& solver : impl_->solvers) {
+    if (solver != nullptr) counters.solves += solver->counters().solves;
+  }
+  return counters;
+}
+
+template class GoodSet<Pose2>;
+template class GoodSet<Pose3>;
+
+}  // namespace irrr

@@ -1,0 +1,144 @@
+#ifndef IRRR_CORE_INCREMENTAL_SOLVER_H_
+#define IRRR_CORE_INCREMENTAL_SOLVER_H_
+
+// One component's good-set estimate, kept at its optimum while poses and loops come and go
+// (algorithm-notes, "Where a check starts (revised)"): the warm engine's estimate, the source of
+// its marginal covariances, and the place where it tries a cluster before trusting it.
+//
+// The problem is the usual one (paper eq. 3): minimise sum_e r_e(x)' Omega_e r_e(x) over the
+// poses of the component, its anchor (the first pose of its earliest session) held fixed. It is
+// kept as a Gauss-Newton linear system
+//   H delta = b,   H = sum_e J_e' Omega_e J_e,   b = -sum_e J_e' Omega_e r_e,
+// with every edge linearized at the linearization points x_lin of its poses, and the estimate is
+// x = x_lin (+) delta (Pose::Retract). H is held as a sparse LDL' factorization (CHOLMOD,
+// simplicial) that is modified rather than recomputed: an edge added or removed is a rank-d update
+// or downdate of the factor, a new pose a row added to it. After a change the system is solved
+// again, and the poses whose step from their linearization point has grown past a threshold are
+// relinearized (their edges' old terms replaced by new ones), until none has: Gauss-Newton to
+// convergence, paying for the part of the graph that moved (as iSAM2's fluid relinearization does
+// with a Bayes tree). When most of the graph moves, or the factor has filled in past its fill-
+// reducing order, everything is linearized anew and factorized under a fresh ordering.
+//
+// Marginal covariances come from the same factor: with P A P' = L D L', the covariance of
+// variables i and j is y_i' D^-1 y_j, y = L^-1 P e; y is nonzero only on the elimination-tree path
+// from i to the root, so a few poses cost a few short sparse solves.
+//
+// A change can be tried and taken back: Checkpoint() starts a trial, Rollback() returns to the
+// checkpoint (estimate, linear system and factor), Commit() keeps the trial.
+//
+// Core runs no threads; an IncrementalSolver is not safe to use from two threads at once.
+
+#include <memory>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "core/pose_graph.h"
+#include "core/status.h"
+
+namespace irrr {
+
+struct IncrementalSolverOptions {
+  // A pose is relinearized when its step from its linearization point exceeds either bound
+  // (radians of rotation, units of translation, as the graph's measurements). The error the
+  // stale Jacobians leave in the estimate is of the order of these times the steps themselves.
+  double relinearize_rotation_rad = 1e-3;
+  double relinearize_translation = 1e-2;
+  // Gauss-Newton iterations of one Optimize (each: a solve, and relinearization of what moved).
+  int max_iterations = 30;
+  // Free places for new poses, as a fraction of the poses at a rebuild (at least kMinSpare).
+  double spare_fraction = 0.5;
+  // A rebuild (a fresh fill-reducing order) is due when the factor has grown past this many times
+  // its size after the last one (new poses and loops fill in against the old order).
+  double refill_ratio = 2.0;
+
+  Status Validate() const;
+};
+
+// What one change of the problem did.
+struct IncrementalSummary {
+  bool ok = false;       // false: the system could not be solved (see message); the problem is
+                         // as the call left it, its estimate the last one that was solved
+  int iterations = 0;    // solves of the linear system
+  int relinearized = 0;  // poses relinearized
+  int rebuilds = 0;      // fresh linearizations and factorizations
+  double chi2 = 0.0;     // D^2 of the problem's edges at the estimate (quadratic model)
+  std::string message;
+};
+
+template <class Pose>
+class IncrementalSolver {
+ public:
+  using Matrix = typename Pose::Matrix;
+
+  // `graph` must outlive the solver; edges and vertices are its indices. Options must be valid.
+  IncrementalSolver(const PoseGraph<Pose>* graph, const IncrementalSolverOptions& options);
+  ~IncrementalSolver();
+  IncrementalSolver(const IncrementalSolver&) = delete;
+  IncrementalSolver& operator=(const IncrementalSolver&) = delete;
+
+  // Replaces the problem: the poses `vertices` (the first is the anchor, held fixed), the edges
+  // `edges` (each joining two of them), started from `estimate` (indexed like the graph's
+  // vertices; only these poses are read). Linearizes there, factorizes and optimizes. The
+  // estimate should be near the optimum (a batch solve's or a previous one's): this runs Gauss-
+  // Newton without a line search. Ends any trial.
+  IncrementalSummary Reset(const std::vector<int>& vertices,
+                           const std::vector<int>& edges,
+                           const std::vector<Pose>& estimate);
+
+  // Adds pose `vertex`, reached from pose `from` (in the problem) by odometry edge `edge`: its
+  // estimate is from's composed with the measurement, so the residual is zero and the estimate
+  // is still the optimum. O(1) but for the factor's row.
+  void Extend(int vertex, int edge);
+
+  // Adds loop edges between poses of the problem, or removes edges it holds, and returns to the
+  // optimum.
+  IncrementalSummary Add(const std::vector<int>& edges);
+  IncrementalSummary Remove(const std::vector<int>& edges);
+
+  // A trial: Checkpoint() remembers the problem; Rollback() returns to it exactly (the estimate
+  // and the linear system bit for bit, the factor to rounding), Commit() forgets it. Extend may
+  // not be called during a trial. Checkpoint during a trial is a broken invariant.
+  void Checkpoint();
+  void Rollback();
+  void Commit();
+  bool InTrial() const;
+
+  // The joint marginal covariance of `vertices` (each in the problem) at the estimate: the
+  // inverse of H there, d*m x d*m in the order given, in the tangent of Pose::Retract; the anchor
+  // has zero rows and columns. The information matrices as given: a caller with a variance
+  // factor scales it.
+  Eigen::MatrixXd Covariance(const std::vector<int>& vertices) const;
+
+  bool Contains(int vertex) const;
+  int anchor() const;
+  const Pose& estimate(int vertex) const;  // vertex must be in the problem
+  const std::vector<int>& vertices() const;
+  const std::vector<int>& edges() const;  // in the order added
+  // D^2 at the estimate (of the quadratic model at the linearization points: within the
+  // relinearization bounds of the exact value).
+  double chi2() const;
+  // The exact D^2 of the problem's edges at the estimate.
+  double ExactChi2() const;
+
+  // Work counters, for the benchmarks.
+  struct Counters {
+    long solves = 0;
+    long updates = 0;  // rank-d updates and downdates, and rows added
+    long rebuilds = 0;
+    long relinearized = 0;
+    long batch_solves = 0;  // fallbacks to a batch solve (large corrections)
+  };
+  const Counters& counters() const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+extern template class IncrementalSolver<Pose2>;
+extern template class IncrementalSolver<Pose3>;
+
+}  // namespace irrr
+
+#endif  // IRRR_CORE_INCREMENTAL_SOLVER_H_

@@ -1,0 +1,79 @@
+#ifndef IRRR_CORE_LOCAL_PROBLEM_H_
+#define IRRR_CORE_LOCAL_PROBLEM_H_
+
+// The optimizations of the paper's tests from dead reckoning: odometry plus a set of loops
+// (PoseGraphIC of Algorithm 1, PoseGraphPR and PoseGraphJC of Algorithms 2-3), each session
+// started from its own dead reckoning, frames that the loops join aligned through their most
+// agreed-on link.
+//
+// Locality: a stretch of a session's odometry that no loop closes (before its first loop endpoint
+// or after its last) has zero residual at the optimum, so only each session's span between its
+// first and last loop endpoint is optimized. The chi2 values and degrees of freedom returned are
+// those of the whole problem (every pose and odometry edge of the sessions involved), so the
+// paper's graph test means what the paper says.
+
+#include <vector>
+
+#include "core/optimizer.h"
+#include "core/pose_graph.h"
+
+namespace irrr {
+
+struct LocalSolution {
+  OptimizerSummary summary;  // edge_chi2 indexed like the graph (0 for edges not in the problem)
+  double chi2 = 0.0;         // D^2 at the optimum (summary.final_chi2)
+  // Residual rows minus free parameters of the whole problem (sessions' odometry and the loops).
+  double dof = 0.0;
+  bool ok() const { return summary.IsSolutionUsable(); }
+};
+
+template <class Pose>
+class LocalProblems {
+ public:
+  // `graph` and `dead_reckoning` (one pose per vertex, each session from the identity) must
+  // outlive this object and may grow between calls.
+  LocalProblems(const PoseGraph<Pose>* graph,
+                const std::vector<Pose>* dead_reckoning,
+                const OptimizerOptions& options);
+
+  // Optimizes the odometry of `sessions` (one flag per session; every session a loop touches must
+  // be set) plus the loops, from dead reckoning. `alignment_cap` bounds each link's chi2 when
+  // choosing the link that aligns two frames (a single wrong link cannot set a session's frame).
+  // With `estimate` (one pose per vertex), the optimum of the sessions is written there: the
+  // spans as optimized, the rest chained along odometry, each component in the frame of its
+  // earliest session's first pose; other sessions' poses are left alone.
+  LocalSolution Solve(const std::vector<char>& sessions,
+                      const std::vector<int>& loops,
+                      double alignment_cap,
+                      std::vector<Pose>* estimate = nullptr);
+  // The sessions the loops touch.
+  std::vector<char> SessionsOf(const std::vector<int>& loops) const;
+
+  int solves() const { return solves_; }
+  int iterations() const { return iterations_; }
+
+ private:
+  const PoseGraph<Pose>* graph_;
+  const std::vector<Pose>* dead_reckoning_;
+  Optimizer<Pose> optimizer_;
+  int solves_ = 0;
+  int iterations_ = 0;
+};
+
+// Brings the frame groups that `loops` join into one frame (the group of the earliest session),
+// group by group in increasing group order. A group is placed through the link, among those
+// joining it to the groups already placed, that the others agree with best: the one whose
+// alignment minimises the sum of the links' d^2, each capped at `cap`.
+template <class Pose>
+void AlignFrames(const PoseGraph<Pose>& graph,
+                 const std::vector<int>& loops,
+                 const std::vector<int>& group_of_session,
+                 double cap,
+                 std::vector<Pose>* estimate);
+
+extern template class LocalProblems<Pose2>;
+extern template class LocalProblems<Pose3>;
+
+}  // namespace irrr
+
+#endif  // IRRR_CORE_LOCAL_PROBLEM_H_

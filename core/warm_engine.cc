@@ -1,0 +1,651 @@
+#include "core/warm_engine.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "core/good_set.h"
+#include "core/intra_cluster.h"
+#include "core/local_problem.h"
+#include "core/test_statistics.h"
+
+namespace irrr {
+namespace {
+
+// A link whose linearized statistic is this many times its threshold is rejected by the screen;
+// closer ones go to the joint test, where the nonlinear optimum decides.
+constexpr double kScreenMargin = 4.0;
+// A cluster of one link needs at least this redundancy number to be judged (Unsupported).
+constexpr double kMinRedundancy = 0.1;
+// Links screened per covariance recovery (bounds its size: 2 x 32 poses).
+constexpr size_t kScreenChunk = 32;
+// A sample whose chi2 is below this times its degrees of freedom carries no noise (a synthesized
+// or duplicated constraint) and says nothing of the variance factor.
+constexpr double kNoiseless = 1e-12;
+// The variance factor's degrees of freedom are those of its samples, at most this many: the
+// factor varies along a trajectory more than a larger count would admit.
+constexpr double kMaxVarianceDof = 50.0;
+// A variance factor is known once one cluster has this much redundancy, or all together three
+// times as much (before, wrong links clustered by chance could set it). A cluster with this much
+// of its own is also judged at the larger of the global factor and its own.
+constexpr double kScaleMinimumDof = 30.0;
+constexpr int kCalibrationRounds = 6;
+// A good cluster accepted under a variance factor more than this many times today's is judged
+// again.
+constexpr double kRevalidateRatio = 2.0;
+constexpr size_t kMaxChallengers = 8;
+
+}  // namespace
+
+template <class Pose>
+struct WarmEngine<Pose>::Impl {
+  static constexpr int d = Pose::kDim;
+
+  Impl(const PoseGraph<Pose>* g,
+       const IrrrOptions* o,
+       DecisionBook* b,
+       std::vector<Pose>* e,
+       const std::vector<Pose>* dead_reckoning)
+      : graph(g),
+        options(o),
+        book(b),
+        estimate(e),
+        problems(g, dead_reckoning, o->optimizer),
+        good(g, e, IncrementalSolverOptions()) {}
+
+  // ---- thresholds and the variance factor -------------------------------------------------
+
+  TestThresholds Thresholds() const {
+    return TestThresholds{options->alpha, variance, variance_dof};
+  }
+  double Threshold(double dof) const { return Thresholds().Of(dof); }
+  double LinkThreshold() const { return Threshold(d); }
+  double AlignmentCap() const { return kAlignmentCap * LinkThreshold(); }
+
+  struct Scale {
+    bool known = false;
+    double variance = 1.0;  // the factor the tests use
+    double estimate = 1.0;  // the factor the data gave (before the cap at 1)
+    double dof = std::numeric_limits<double>::infinity();
+  };
+
+  // A fixed factor from the options (known exactly); else the dof-weighted median over Algorithm
+  // 1's clusters of two or more links that are not rejected (robust to a minority of wrong ones),
+  // known once enough redundancy is seen; never above 1.
+  Scale CurrentScale() const {
+    Scale scale;
+    std::vector<RedundancySample> samples;
+    double total = 0.0;
+    double largest = 0.0;
+    for (const JudgedCluster& c : book->clusters) {
+      if (!c.in_reject && c.links.size() >= 2 && c.redundancy_dof > 0.0 &&
+          c.redundancy_chi2 > kNoiseless * c.redundancy_dof) {
+        samples.push_back({c.redundancy_chi2, c.redundancy_dof});
+        total += c.redundancy_dof;
+        largest = std::max(largest, c.redundancy_dof);
+      }
+    }
+    const double robust = RobustVarianceFactor(samples);
+    const bool enough =
+        std::isfinite(robust) && (largest >= kScaleMinimumDof || total >= 3 * kScaleMinimumDof);
+    if (enough) scale.estimate = robust;
+    if (options->variance_factor > 0.0) {
+      scale.known = true;
+      scale.variance = options->variance_factor;
+      return scale;
+    }
+    if (!enough) return scale;
+    scale.known = true;
+    // Never above 1: a factor above 1 says the information is over-confident, and the data cannot
+    // tell that from wrong links clustered with true ones (on KITTI's place-recognition graphs the
+    // estimate came out above 1 and let hundreds of wrong loops in; at 1 none). Over-confident
+    // information is fixed with irrr.variance_factor.
+    scale.variance = std::min(robust, 1.0);
+    scale.dof = std::min(total, kMaxVarianceDof);
+    return scale;
+  }
+
+  void EstimateVarianceFactor() {
+    const Scale scale = CurrentScale();
+    scale_known = scale.known;
+    variance = scale.variance;
+    variance_estimate = scale.estimate;
+    variance_dof = scale.dof;
+  }
+
+  // Before any factor is known, the redundancy of cluster q on its own scale: Algorithm 1's
+  // optimum, its links failing the link test at the scale they imply set aside and the rest solved
+  // again, until none fails (a trimmed estimate: one wrong link among many true ones dominates the
+  // cluster's chi2 and stands out against it). The cluster itself is unchanged.
+  void Calibrate(int q) {
+    std::vector<int> links = book->clusters[q].links;
+    for (int round = 0; round < kCalibrationRounds && links.size() >= 2; ++round) {
+      const LocalSolution solution =
+          problems.Solve(problems.SessionsOf(links), links, AlignmentCap());
+      if (!solution.ok() || solution.dof <= 0.0) break;
+      book->clusters[q].redundancy_chi2 = solution.chi2;
+      book->clusters[q].redundancy_dof = solution.dof;
+      const double threshold = solution.chi2 / solution.dof * ChiSquareQuantile(options->alpha, d);
+      std::vector<int> kept;
+      for (int e : links) {
+        if (solution.summary.edge_chi2[e] <= threshold) kept.push_back(e);
+      }
+      if (kept.size() == links.size()) break;
+      links = kept;
+    }
+  }
+
+  // ---- the good set --------------------------------------------------------------------------
+
+  std::vector<int> GoodLoops() const {
+    std::vector<int> loops;
+    for (const JudgedCluster& c : book->clusters) {
+      if (c.in_good) loops.insert(loops.end(), c.links.begin(), c.links.end());
+    }
+    return loops;
+  }
+
+  int GoodLinks() const {
+    int n = 0;
+    for (const JudgedCluster& c : book->clusters)
+      n += c.in_good ? static_cast<int>(c.links.size()) : 0;
+    return n;
+  }
+
+  // Whether cluster q lies within the components `components`.
+  bool Within(const std::vector<int>& components, int q) const {
+    const JudgedCluster& c = book->clusters[q];
+    auto in = [&](int session) {
+      return std::find(components.begin(), components.end(), good.ComponentOf(session)) !=
+             components.end();
+    };
+    return in(c.session_a) && in(c.session_b);
+  }
+
+  // The clusters judged by no test yet (waiting for a variance factor or for support), in
+  // closing order.
+  std::vector<int> Waiting() const {
+    std::vector<int> waiting;
+    for (int q = 0; q < static_cast<int>(book->clusters.size()); ++q) {
+      const JudgedCluster& c = book->clusters[q];
+      if (c.closed && !c.in_r && !c.in_reject && !c.links.empty()) waiting.push_back(q);
+    }
+    return waiting;
+  }
+
+  void SortLargestFirst(std::vector<int>* clusters) const {
+    std::stable_sort(clusters->begin(), clusters->end(), [this](int a, int b) {
+      return book->clusters[a].links.size() > book->clusters[b].links.size();
+    });
+  }
+
+  // ---- one step ------------------------------------------------------------------------------
+
+  void Step(int k, StepResult* result) {
+    const int solves_before = Solves();
+    const int iterations_before = Iterations();
+    EstimateVarianceFactor();
+    std::vector<int> batch;
+    if (k >= 0) batch.push_back(k);
+    if (!scale_known) {
+      if (k >= 0 && book->clusters[k].links.size() >= 2) Calibrate(k);
+      EstimateVarianceFactor();
+      if (!scale_known && released) {
+        // A flush or a session's end: what waits is judged with the information as given.
+        variance = 1.0;
+        variance_dof = std::numeric_limits<double>::infinity();
+        scale_known = true;
+      }
+      if (scale_known) {
+        batch = Waiting();
+        SortLargestFirst(&batch);
+      } else {
+        batch.clear();  // waits
+      }
+    }
+    if (scale_known) {
+      Revalidate(result);
+      const int good_before = GoodLinks();
+      for (int q : batch) Judge(q, result);
+      // Clusters that wait for support are judged again once the good set has grown.
+      if (k >= 0 && GoodLinks() != good_before) {
+        for (int q : Waiting()) Judge(q, result);
+      }
+    }
+    std::vector<int>& changed = result->changed_loops;
+    std::sort(changed.begin(), changed.end());
+    changed.erase(std::unique(changed.begin(), changed.end()), changed.end());
+    std::sort(result->sessions.begin(), result->sessions.end());
+    result->sessions.erase(std::unique(result->sessions.begin(), result->sessions.end()),
+                           result->sessions.end());
+    result->chi2 = 0.0;
+    std::vector<int> components;
+    for (int s : result->sessions) components.push_back(good.ComponentOf(s));
+    std::sort(components.begin(), components.end());
+    components.erase(std::unique(components.begin(), components.end()), components.end());
+    for (int c : components) {
+      if (c >= 0) result->chi2 += good.Solver(c).chi2();
+    }
+    result->solves += Solves() - solves_before;
+    result->iterations += Iterations() - iterations_before;
+    result->variance_factor = variance;
+    result->variance_estimate = variance_estimate;
+  }
+
+  int Solves() const {
+    return problems.solves() + static_cast<int>(good.counters().trials + good.counters().rebuilds);
+  }
+  int Iterations() const {
+    return problems.iterations() + static_cast<int>(good.counters().iterations);
+  }
+
+  // Reversing: good clusters accepted under a variance factor more than kRevalidateRatio times
+  // the current one (early, on little evidence of the noise) leave the good set together, get
+  // back every link they held when they closed, and are judged again at the current factor; their
+  // links that do not come back are reversed.
+  void Revalidate(StepResult* result) {
+    std::vector<int> suspects;
+    for (int g = 0; g < static_cast<int>(book->clusters.size()); ++g) {
+      const JudgedCluster& c = book->clusters[g];
+      if (c.in_good && c.accepted_variance > kRevalidateRatio * variance) suspects.push_back(g);
+    }
+    if (suspects.empty()) return;
+    std::vector<int> accepted_before;
+    for (int g : suspects) {
+      JudgedCluster& c = book->clusters[g];
+      c.in_good = false;
+      c.in_r = false;
+      c.links.clear();
+    }
+    for (int e = 0; e < graph->num_edges(); ++e) {
+      const LoopDecision& decision = book->decisions[e];
+      if (decision.cluster < 0 ||
+          std::find(suspects.begin(), suspects.end(), decision.cluster) == suspects.end()) {
+        continue;
+      }
+      book->clusters[decision.cluster].links.push_back(e);
+      if (decision.state == LoopState::kAccepted) accepted_before.push_back(e);
+    }
+    good.Rebuild(GoodLoops(), AlignmentCap());
+    SortLargestFirst(&suspects);
+    for (int g : suspects) Judge(g, result);
+    for (int e : accepted_before) {
+      const LoopDecision& decision = book->decisions[e];
+      if (decision.state != LoopState::kAccepted) {
+        book->Set(
+            e, LoopState::kReversed, decision.chi2, decision.threshold, &result->changed_loops);
+      }
+    }
+    result->reversals += static_cast<int>(suspects.size());
+  }
+
+  // The whole pipeline for one cluster: screen, Algorithm 1, joint test (with its splits).
+  void Judge(int k, StepResult* result) {
+    std::vector<int>* changed = &result->changed_loops;
+    JudgedCluster& cluster = book->clusters[k];
+    const int component_a = good.ComponentOf(cluster.session_a);
+    const int component_b = good.ComponentOf(cluster.session_b);
+    for (int c : {component_a, component_b}) {
+      for (int s : good.SessionsOf(c)) result->sessions.push_back(s);
+    }
+    // The screen first: each link alone against the good set (a few sparse solves), so that
+    // Algorithm 1 weighs only links that are not far off.
+    if (component_a == component_b) Screen(k, component_a, changed);
+    std::vector<int> splits;
+    if (book->clusters[k].links.empty() ||
+        !WarmIntraCluster(&problems, Thresholds(), k, book, changed, &splits)) {
+      book->clusters[k].in_reject = true;
+      return;
+    }
+    std::vector<int> candidates = {k};
+    candidates.insert(candidates.end(), splits.begin(), splits.end());
+    for (int q : candidates) {
+      JudgedCluster& c = book->clusters[q];
+      if (!c.in_r || c.links.empty()) continue;
+      if (Unsupported(q)) {
+        // Waits, as judged by nothing yet, for a good set that can check it.
+        c.in_r = false;
+        c.held = true;
+        book->Set(c.links.front(), LoopState::kPending, 0.0, 0.0, changed);
+        continue;
+      }
+      c.held = false;
+      JointTest(q, result);
+    }
+  }
+
+  // The screen: links far off at the current optimum leave cluster q (inside one component).
+  void Screen(int q, int component, std::vector<int>* changed) {
+    const double far = kScreenMargin * LinkThreshold();
+    std::vector<int>& links = book->clusters[q].links;
+    if (static_cast<int>(control.size()) < graph->num_edges()) {
+      control.resize(graph->num_edges(), -1.0);
+    }
+    std::vector<int> kept;
+    std::vector<std::pair<int, double>> far_off;
+    for (size_t first = 0; first < links.size(); first += kScreenChunk) {
+      const size_t last = std::min(links.size(), first + kScreenChunk);
+      std::vector<int> vertices;
+      for (size_t k = first; k < last; ++k) {
+        vertices.push_back(graph->edge(links[k]).from);
+        vertices.push_back(graph->edge(links[k]).to);
+      }
+      std::sort(vertices.begin(), vertices.end());
+      vertices.erase(std::unique(vertices.begin(), vertices.end()), vertices.end());
+      const Eigen::MatrixXd covariance = good.Covariance(component, vertices);
+      for (size_t k = first; k < last; ++k) {
+        const int e = links[k];
+        const Edge<Pose>& edge = graph->edge(e);
+        const std::vector<int> ends = {edge.from, edge.to};
+        const int i = static_cast<int>(
+            std::lower_bound(vertices.begin(), vertices.end(), edge.from) - vertices.begin());
+        const int j = static_cast<int>(std::lower_bound(vertices.begin(), vertices.end(), edge.to) -
+                                       vertices.begin());
+        Eigen::MatrixXd sigma(2 * d, 2 * d);
+        sigma.topLeftCorner(d, d) = covariance.block(i * d, i * d, d, d);
+        sigma.topRightCorner(d, d) = covariance.block(i * d, j * d, d, d);
+        sigma.bottomLeftCorner(d, d) = covariance.block(j * d, i * d, d, d);
+        sigma.bottomRightCorner(d, d) = covariance.block(j * d, j * d, d, d);
+        const LinearizedAddition addition =
+            LinearizeAddition<Pose>({&edge}, *estimate, ends, sigma);
+        control[e] = addition.redundancy;
+        if (addition.chi2_increase <= far) {
+          kept.push_back(e);
+        } else {
+          far_off.push_back({e, addition.chi2_increase});
+        }
+      }
+    }
+    // If every link of a multi-link cluster is far off, the cluster goes on to the joint test
+    // whole: it is either a wrong group, which the joint test rejects as well, or true links
+    // against a wrong good cluster, whose conflict only the joint test records (Challenge).
+    if (kept.empty() && far_off.size() >= 2) return;
+    for (const auto& [e, statistic] : far_off) {
+      book->Set(e, LoopState::kRejectedJointTest, statistic, far, changed);
+    }
+    links = kept;
+  }
+
+  // A cluster of one link (none of its own to support it) whose end poses the good set knows far
+  // worse than the link measures them (redundancy number below kMinRedundancy, or in two
+  // components): the link would bend the estimate to fit whatever it says, so no test can tell
+  // it wrong.
+  bool Unsupported(int q) const {
+    const JudgedCluster& c = book->clusters[q];
+    if (c.links.size() != 1) return false;
+    const int e = c.links.front();
+    return e >= static_cast<int>(control.size()) || !(control[e] >= kMinRedundancy);
+  }
+
+  // The components a cluster touches.
+  std::vector<int> ComponentsOf(int q) const {
+    const JudgedCluster& c = book->clusters[q];
+    std::vector<int> components = {good.ComponentOf(c.session_a), good.ComponentOf(c.session_b)};
+    if (components[0] == components[1]) components.pop_back();
+    return components;
+  }
+
+  double ConsistencyIndex(int q, double* chi2) const {
+    *chi2 = 0.0;
+    for (int e : book->clusters[q].links) *chi2 += good.EdgeChi2(e);
+    return *chi2 / Threshold(d * static_cast<double>(book->clusters[q].links.size()));
+  }
+
+  // Whether cluster q passes at the open trial's optimum: its consistency index, and each link.
+  bool Consistent(int q) const {
+    double chi2;
+    if (ConsistencyIndex(q, &chi2) >= 1.0) return false;
+    for (int e : book->clusters[q].links) {
+      if (!(good.EdgeChi2(e) < LinkThreshold())) return false;
+    }
+    return true;
+  }
+
+  bool IncreasePasses(const typename GoodSet<Pose>::Trial& trial) const {
+    return trial.ok && (trial.dof <= 0.0 || trial.increase < Threshold(trial.dof));
+  }
+
+  void Accept(int q, std::vector<int>* changed) {
+    JudgedCluster& c = book->clusters[q];
+    for (int e : c.links) {
+      book->Set(e, LoopState::kAccepted, good.EdgeChi2(e), LinkThreshold(), changed);
+    }
+    c.in_good = true;
+    c.in_reject = false;
+    c.in_r = true;
+    c.accepted_variance = variance;
+  }
+
+  void JointTest(int q, StepResult* result) {
+    // A cluster with redundancy enough of its own is judged at the larger of the global factor
+    // and its own (the noise varies along a trajectory; Algorithm 1's graph test has already
+    // bounded its own factor by the global one's threshold).
+    const JudgedCluster& c = book->clusters[q];
+    const double global = variance;
+    if (c.redundancy_dof >= kScaleMinimumDof) {
+      variance = std::max(global, c.redundancy_chi2 / c.redundancy_dof);
+    }
+    JointTestAtScale(q, result);
+    variance = global;
+  }
+
+  void JointTestAtScale(int q, StepResult* result) {
+    std::vector<int>* changed = &result->changed_loops;
+    while (true) {
+      std::vector<int>& links = book->clusters[q].links;
+      const std::vector<int> components = ComponentsOf(q);
+      const typename GoodSet<Pose>::Trial trial = good.Try(links, AlignmentCap());
+      if (!trial.ok) {
+        for (int e : links) {
+          book->Set(e,
+                    LoopState::kRejectedJointTest,
+                    std::numeric_limits<double>::quiet_NaN(),
+                    std::numeric_limits<double>::quiet_NaN(),
+                    changed);
+        }
+        book->clusters[q].in_reject = true;
+        return;
+      }
+      double cluster_chi2;
+      const double index = ConsistencyIndex(q, &cluster_chi2);
+      if (IncreasePasses(trial) && index < 1.0) {
+        // Links failing on their own leave; the rest is judged again without them.
+        std::vector<int> kept;
+        std::vector<std::pair<int, double>> failing;
+        for (int e : links) {
+          const double chi2 = good.EdgeChi2(e);
+          if (chi2 < LinkThreshold()) {
+            kept.push_back(e);
+          } else {
+            failing.push_back({e, chi2});
+          }
+        }
+        if (failing.empty()) {
+          good.Commit();
+          Accept(q, changed);
+          return;
+        }
+        good.Rollback();
+        for (const auto& [e, chi2] : failing) {
+          book->Set(e, LoopState::kRejectedLinkTest, chi2, LinkThreshold(), changed);
+        }
+        links = kept;
+        if (kept.empty()) break;
+        continue;
+      }
+      // Inconsistent: with the good clusters that are inconsistent too, if any.
+      std::vector<int> suspects;
+      for (int g = 0; g < static_cast<int>(book->clusters.size()); ++g) {
+        if (!book->clusters[g].in_good || !Within(components, g)) continue;
+        double chi2;
+        if (ConsistencyIndex(g, &chi2) >= 1.0) suspects.push_back(g);
+      }
+      good.Rollback();
+      const double threshold = trial.dof > 0.0 ? Threshold(trial.dof) : 0.0;
+      for (int e : links) {
+        book->Set(e, LoopState::kRejectedJointTest, trial.increase, threshold, changed);
+      }
+      book->clusters[q].in_reject = true;
+      for (int g : suspects) book->clusters[g].opponents.push_back(q);
+      if (!suspects.empty()) Challenge(suspects, components, result);
+      return;
+    }
+    book->clusters[q].in_reject = true;
+  }
+
+  // Reversal (Algorithm 2 with later evidence): when a cluster falls against good clusters that
+  // are inconsistent too (the suspects), the clusters that fell against them so far (their
+  // opponents, at most kMaxChallengers, largest first) challenge them: from the good set without
+  // the suspects, each challenger and then each suspect is added if it passes the joint test. If
+  // the good set so built holds more links than the current one, it replaces it: suspects left
+  // out are reversed, challengers taken in are accepted (the largest consistent set wins, as later
+  // evidence adds up). Otherwise nothing changes.
+  void Challenge(const std::vector<int>& suspects,
+                 const std::vector<int>& components,
+                 StepResult* result) {
+    std::vector<int> challengers;
+    size_t challenger_links = 0;
+    size_t smallest_suspect = std::numeric_limits<size_t>::max();
+    for (int g : suspects) {
+      smallest_suspect = std::min(smallest_suspect, book->clusters[g].links.size());
+      for (int r : book->clusters[g].opponents) {
+        const JudgedCluster& c = book->clusters[r];
+        if (!c.in_reject || c.in_good || c.links.empty() || !Within(components, r) ||
+            std::find(challengers.begin(), challengers.end(), r) != challengers.end()) {
+          continue;
+        }
+        challengers.push_back(r);
+      }
+    }
+    SortLargestFirst(&challengers);
+    if (challengers.size() > kMaxChallengers) challengers.resize(kMaxChallengers);
+    for (int r : challengers) challenger_links += book->clusters[r].links.size();
+    if (challenger_links <= smallest_suspect) return;
+
+    std::vector<int> before;  // the good clusters now
+    size_t good_links = 0;
+    for (int g = 0; g < static_cast<int>(book->clusters.size()); ++g) {
+      if (!book->clusters[g].in_good) continue;
+      before.push_back(g);
+      if (Within(components, g)) good_links += book->clusters[g].links.size();
+    }
+    std::vector<int> base;
+    size_t base_links = 0;
+    for (int g : before) {
+      if (std::find(suspects.begin(), suspects.end(), g) != suspects.end()) continue;
+      base.push_back(g);
+      if (Within(components, g)) base_links += book->clusters[g].links.size();
+    }
+    const std::vector<Pose> saved = *estimate;
+    auto loops_of = [this](const std::vector<int>& clusters) {
+      std::vector<int> loops;
+      for (int g : clusters) {
+        loops.insert(loops.end(), book->clusters[g].links.begin(), book->clusters[g].links.end());
+      }
+      return loops;
+    };
+    good.Rebuild(loops_of(base), AlignmentCap());
+    std::vector<int> ordered = challengers;
+    std::vector<int> sorted_suspects = suspects;
+    SortLargestFirst(&sorted_suspects);
+    ordered.insert(ordered.end(), sorted_suspects.begin(), sorted_suspects.end());
+    std::vector<int> taken;
+    for (int q : ordered) {
+      const typename GoodSet<Pose>::Trial trial = good.Try(book->clusters[q].links, AlignmentCap());
+      if (!trial.ok) continue;
+      if (!IncreasePasses(trial) || !Consistent(q)) {
+        good.Rollback();
+        continue;
+      }
+      good.Commit();
+      taken.push_back(q);
+      base_links += book->clusters[q].links.size();
+    }
+    if (base_links <= good_links) {
+      // The good set stays as it was.
+      *estimate = saved;
+      good.Rebuild(loops_of(before), AlignmentCap());
+      return;
+    }
+    std::vector<int>* changed = &result->changed_loops;
+    for (int g : suspects) {
+      if (std::find(taken.begin(), taken.end(), g) != taken.end()) continue;
+      double chi2;
+      ConsistencyIndex(g, &chi2);
+      const double threshold = Threshold(d * static_cast<double>(book->clusters[g].links.size()));
+      for (int e : book->clusters[g].links) {
+        book->Set(e, LoopState::kReversed, chi2, threshold, changed);
+      }
+      book->clusters[g].in_good = false;
+      book->clusters[g].in_reject = true;
+    }
+    for (int q : taken) Accept(q, changed);
+    ++result->reversals;
+  }
+
+  const PoseGraph<Pose>* graph;
+  const IrrrOptions* options;
+  DecisionBook* book;
+  std::vector<Pose>* estimate;
+  LocalProblems<Pose> problems;
+  GoodSet<Pose> good;
+  double variance = 1.0;
+  double variance_estimate = 1.0;
+  double variance_dof = std::numeric_limits<double>::infinity();
+  bool scale_known = false;
+  bool released = false;
+  std::vector<double> control;  // per loop edge: its redundancy number at its last screen
+};
+
+template <class Pose>
+WarmEngine<Pose>::WarmEngine(const PoseGraph<Pose>* graph,
+                             const IrrrOptions* options,
+                             DecisionBook* book,
+                             std::vector<Pose>* estimate,
+                             const std::vector<Pose>* dead_reckoning)
+    : impl_(std::make_unique<Impl>(graph, options, book, estimate, dead_reckoning)) {}
+
+template <class Pose>
+WarmEngine<Pose>::~WarmEngine() = default;
+
+template <class Pose>
+void WarmEngine<Pose>::AddPose(int vertex) {
+  impl_->good.AddPose(vertex);
+}
+
+template <class Pose>
+void WarmEngine<Pose>::Release() {
+  impl_->released = true;
+}
+
+template <class Pose>
+bool WarmEngine<Pose>::HasReleased() const {
+  const Impl& m = *impl_;
+  if (!m.released || m.CurrentScale().known) return false;
+  for (int q : m.Waiting()) {
+    if (!m.book->clusters[q].held) return true;
+  }
+  return false;
+}
+
+template <class Pose>
+void WarmEngine<Pose>::Step(int cluster, StepResult* result) {
+  impl_->Step(cluster, result);
+}
+
+template <class Pose>
+std::vector<int> WarmEngine<Pose>::Components() const {
+  return impl_->good.Components();
+}
+
+template <class Pose>
+void WarmEngine<Pose>::Restore() {
+  Impl& m = *impl_;
+  m.control.clear();
+  m.good.Rebuild(m.GoodLoops(), m.AlignmentCap());
+}
+
+template class WarmEngine<Pose2>;
+template class WarmEngine<Pose3>;
+
+}  // namespace irrr
