@@ -31,6 +31,7 @@ void VisitFields(IrrrOptions& options, Visitor& visit) {
   visit("alpha", options.alpha);
   visit("variance_factor", options.variance_factor);
   visit("cluster_gap", options.cluster_gap);
+  visit("cluster_span", options.cluster_span);
   visit("graph_dof", options.graph_dof);
   visit("optimizer", options.optimizer);
 }

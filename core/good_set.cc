@@ -145,8 +145,14 @@ std::vector<int> GoodSet<Pose>::Components() const {
 }
 
 template <class Pose>
-Eigen::MatrixXd GoodSet<Pose>::Covariance(int component, const std::vector<int>& vertices) const {
-  return impl_->solvers[component]->Covariance(vertices);
+Eigen::MatrixXd GoodSet<Pose>::Covariance(const std::vector<int>& vertices) const {
+  IRRR_CHECK(!vertices.empty());
+  return impl_->SolverOfVertex(vertices.front())->Covariance(vertices);
+}
+
+template <class Pose>
+const Pose& GoodSet<Pose>::Estimate(int vertex) const {
+  return impl_->SolverOfVertex(vertex)->estimate(vertex);
 }
 
 template <class Pose>

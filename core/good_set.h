@@ -44,8 +44,11 @@ class GoodSet {
   // Every session's component, numbered 0, 1, ... by earliest session.
   std::vector<int> Components() const;
 
-  // The joint marginal covariance of poses of one component (IncrementalSolver::Covariance).
-  Eigen::MatrixXd Covariance(int component, const std::vector<int>& vertices) const;
+  // The joint marginal covariance of poses of one component (IncrementalSolver::Covariance), that
+  // of the open trial's if they are in it.
+  Eigen::MatrixXd Covariance(const std::vector<int>& vertices) const;
+  // A pose of the estimate (of the open trial's, during one).
+  const Pose& Estimate(int vertex) const;
 
   // What a trial of loops found at the optimum with them.
   struct Trial {

@@ -60,12 +60,36 @@ bool PaperIntraCluster(LocalProblems<Pose>* problems,
 
 template <class Pose>
 bool WarmIntraCluster(LocalProblems<Pose>* problems,
+                      const PairwiseConsistency<Pose>* pairwise,
                       const TestThresholds& thresholds,
                       int cluster,
                       DecisionBook* book,
                       std::vector<int>* changed,
                       std::vector<int>* splits) {
   const double link_threshold = thresholds.Of(Pose::kDim);
+  if (pairwise != nullptr && book->clusters[cluster].links.size() >= 2) {
+    // Links that do not agree with the largest consistent set leave it as clusters of their own,
+    // each judged below (after the cluster they left).
+    const std::vector<std::vector<int>> subsets = pairwise->ConsistentSubsets(
+        book->clusters[cluster].links, PairwiseThreshold<Pose>(thresholds));
+    book->clusters[cluster].links = subsets.front();
+    std::vector<int> parts;
+    for (size_t k = 1; k < subsets.size(); ++k) {
+      const int part =
+          book->AddCluster(book->clusters[cluster].session_a, book->clusters[cluster].session_b);
+      book->clusters[part].links = subsets[k];
+      book->clusters[part].closed = true;
+      for (int e : subsets[k]) book->decisions[e].cluster = part;
+      parts.push_back(part);
+    }
+    const bool survived =
+        WarmIntraCluster<Pose>(problems, nullptr, thresholds, cluster, book, changed, splits);
+    for (int part : parts) {
+      splits->push_back(part);
+      WarmIntraCluster<Pose>(problems, nullptr, thresholds, part, book, changed, splits);
+    }
+    return survived;
+  }
   std::vector<int> links = book->clusters[cluster].links;
   std::vector<std::pair<double, int>> set_aside;  // (d^2 when set aside, link)
   LocalSolution solution;
@@ -135,11 +159,10 @@ bool WarmIntraCluster(LocalProblems<Pose>* problems,
   JudgedCluster& c = book->clusters[cluster];
   c.links = links;
   c.in_r = !links.empty();
-  if (c.in_r) {
-    c.redundancy_chi2 = solution.chi2;
-    c.redundancy_dof = solution.dof;
-  }
   if (!c.in_r) return false;
+  const RedundancySample sample = ClusterRedundancy(problems, thresholds, links);
+  c.redundancy_chi2 = sample.chi2;
+  c.redundancy_dof = sample.dof;
   // The links that stayed out: a cluster of their own.
   std::vector<int> left;
   for (const auto& [unused, e] : set_aside) {
@@ -152,15 +175,18 @@ bool WarmIntraCluster(LocalProblems<Pose>* problems,
     book->clusters[split].closed = true;
     for (int e : left) book->decisions[e].cluster = split;
     splits->push_back(split);
-    WarmIntraCluster(problems, thresholds, split, book, changed, splits);
+    WarmIntraCluster<Pose>(problems, nullptr, thresholds, split, book, changed, splits);
   }
   return true;
 }
 
 template <class Pose>
-RedundancySample ClusterRedundancy(LocalProblems<Pose>* problems, const std::vector<int>& links) {
+RedundancySample ClusterRedundancy(LocalProblems<Pose>* problems,
+                                   const TestThresholds& thresholds,
+                                   const std::vector<int>& links) {
+  if (links.size() < 2) return {};
   const LocalSolution solution =
-      problems->Solve(problems->SessionsOf(links), links, std::numeric_limits<double>::max());
+      problems->InternalRedundancy(links, kAlignmentCap * thresholds.Of(Pose::kDim));
   if (!solution.ok()) return {};
   return {solution.chi2, solution.dof};
 }
@@ -170,18 +196,24 @@ template bool PaperIntraCluster<Pose2>(
 template bool PaperIntraCluster<Pose3>(
     LocalProblems<Pose3>*, const TestThresholds&, bool, int, DecisionBook*, std::vector<int>*);
 template bool WarmIntraCluster<Pose2>(LocalProblems<Pose2>*,
+                                      const PairwiseConsistency<Pose2>*,
                                       const TestThresholds&,
                                       int,
                                       DecisionBook*,
                                       std::vector<int>*,
                                       std::vector<int>*);
 template bool WarmIntraCluster<Pose3>(LocalProblems<Pose3>*,
+                                      const PairwiseConsistency<Pose3>*,
                                       const TestThresholds&,
                                       int,
                                       DecisionBook*,
                                       std::vector<int>*,
                                       std::vector<int>*);
-template RedundancySample ClusterRedundancy<Pose2>(LocalProblems<Pose2>*, const std::vector<int>&);
-template RedundancySample ClusterRedundancy<Pose3>(LocalProblems<Pose3>*, const std::vector<int>&);
+template RedundancySample ClusterRedundancy<Pose2>(LocalProblems<Pose2>*,
+                                                   const TestThresholds&,
+                                                   const std::vector<int>&);
+template RedundancySample ClusterRedundancy<Pose3>(LocalProblems<Pose3>*,
+                                                   const TestThresholds&,
+                                                   const std::vector<int>&);
 
 }  // namespace irrr

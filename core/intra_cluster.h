@@ -11,6 +11,7 @@
 
 #include "core/decisions.h"
 #include "core/local_problem.h"
+#include "core/pairwise_consistency.h"
 #include "core/test_statistics.h"
 
 namespace irrr {
@@ -32,28 +33,42 @@ bool PaperIntraCluster(LocalProblems<Pose>* problems,
                        DecisionBook* book,
                        std::vector<int>* changed);
 
+// The threshold of the pairwise statistic (PairwiseConsistency): the chi-square quantile at 1 -
+// 1e-6, scaled by the variance factor. A true link must agree with every other member of its set,
+// so a cluster of 100 true links at the tests' 0.999 would lose one link in ten; wrong ones stand
+// orders of magnitude above either.
+template <class Pose>
+double PairwiseThreshold(const TestThresholds& thresholds) {
+  return thresholds.variance * ChiSquareQuantile(1.0 - 1e-6, Pose::kDim);
+}
+
 // Algorithm 1 of the warm engine (beyond the paper: one wrong link clustered with true ones must
 // not take them down with it, nor the reverse). The graph test counts degrees of freedom exactly.
+//  - With `pairwise` (not null), the cluster keeps its largest set of pairwise consistent links
+//    (PairwiseConsistency::ConsistentSubsets); each other set becomes a cluster of its own.
 //  - While the graph test fails, the link with the largest d^2 at the cluster's optimum leaves;
 //    when it passes, every link failing the link test leaves; then the cluster is solved again.
 //  - Links that left are tried again one by one, most plausible first, and come back when the
 //    cluster still passes both tests with them.
 //  - Those that stay out form a new cluster (appended to the book), judged the same way: a
 //    consistent wrong group clustered in time with true loops is judged on its own.
-// Every cluster so made is listed in `splits`. Sets `in_r` and the redundancy (chi2 and degrees
-// of freedom at the final optimum) of each; returns whether `cluster` has links left.
+// Every cluster so made is listed in `splits`. Sets `in_r` and the redundancy (ClusterRedundancy)
+// of each; returns whether `cluster` has links left.
 template <class Pose>
 bool WarmIntraCluster(LocalProblems<Pose>* problems,
+                      const PairwiseConsistency<Pose>* pairwise,
                       const TestThresholds& thresholds,
                       int cluster,
                       DecisionBook* book,
                       std::vector<int>* changed,
                       std::vector<int>* splits);
 
-// The redundancy of a cluster's links on their own: chi2 and degrees of freedom at Algorithm 1's
-// optimum (0 degrees of freedom for a single link).
+// The redundancy of a cluster's links among themselves (LocalProblems::InternalRedundancy): chi2
+// and degrees of freedom, a sample of the variance factor; none for a single link.
 template <class Pose>
-RedundancySample ClusterRedundancy(LocalProblems<Pose>* problems, const std::vector<int>& links);
+RedundancySample ClusterRedundancy(LocalProblems<Pose>* problems,
+                                   const TestThresholds& thresholds,
+                                   const std::vector<int>& links);
 
 }  // namespace irrr
 

@@ -23,6 +23,7 @@ IrrrOptions IrrrOptions::PaperFaithful() {
   IrrrOptions options;
   options.engine = IrrrEngine::kPaper;
   options.alpha = 0.95;
+  options.cluster_span = 0.0;
   return options;
 }
 
@@ -30,6 +31,9 @@ Status IrrrOptions::Validate() const {
   if (!(alpha > 0.0 && alpha < 1.0)) return Status::Error("alpha must be in (0, 1)");
   if (!(cluster_gap >= 0.0) || !std::isfinite(cluster_gap)) {
     return Status::Error("cluster_gap must be a finite number >= 0");
+  }
+  if (!(cluster_span >= 0.0) || !std::isfinite(cluster_span)) {
+    return Status::Error("cluster_span must be a finite number >= 0 (0: unbounded)");
   }
   if (!(variance_factor >= 0.0) || !std::isfinite(variance_factor)) {
     return Status::Error("variance_factor must be a finite number >= 0 (0: estimated)");
@@ -60,7 +64,7 @@ template <class Pose>
 struct Irrr<Pose>::State {
   explicit State(const IrrrOptions& o)
       : options(o),
-        clusterer(o.cluster_gap),
+        clusterer(o.cluster_gap, o.cluster_gap * o.cluster_span),
         warm(&graph, &options, &book, &estimate, &dead_reckoning),
         paper(&graph, &options, &book, &estimate, &dead_reckoning) {}
 
@@ -318,7 +322,7 @@ std::vector<LoopDecision> RunBatchRrr(const PoseGraph<Pose>& graph,
   auto arrival = [&graph](int e) { return std::max(graph.edge(e).from, graph.edge(e).to); };
   std::stable_sort(
       loops.begin(), loops.end(), [&](int a, int b) { return arrival(a) < arrival(b); });
-  LoopClusterer clusterer(options.cluster_gap);
+  LoopClusterer clusterer(options.cluster_gap, options.cluster_gap * options.cluster_span);
   for (int e : loops) {
     const Vertex& from = graph.vertex(graph.edge(e).from);
     const Vertex& to = graph.vertex(graph.edge(e).to);

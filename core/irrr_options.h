@@ -41,6 +41,10 @@ struct IrrrOptions {
   // value fixes it (1: trust the information as given).
   double variance_factor = 0.0;
   double cluster_gap = 50.0;  // t_g of eq. (6), in stamp units (poses for files, seconds live)
+  // Beyond the paper: a cluster closes at the latest when its later side spans this many cluster
+  // gaps (LoopClusterer's max_span), so that a place revisited without pause is judged in pieces
+  // as it goes, not once at the end. 0: unbounded (the paper).
+  double cluster_span = 4.0;
   GraphDegreesOfFreedom graph_dof = GraphDegreesOfFreedom::kResidualRows;  // paper engine
   OptimizerOptions optimizer;  // Algorithm 1's optimizations, and all of the paper engine's
 

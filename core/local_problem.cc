@@ -96,6 +96,21 @@ LocalSolution LocalProblems<Pose>::Solve(const std::vector<char>& sessions,
                                          const std::vector<int>& loops,
                                          double alignment_cap,
                                          std::vector<Pose>* estimate) {
+  return Solve(sessions, loops, alignment_cap, estimate, false);
+}
+
+template <class Pose>
+LocalSolution LocalProblems<Pose>::InternalRedundancy(const std::vector<int>& loops,
+                                                      double alignment_cap) {
+  return Solve(SessionsOf(loops), loops, alignment_cap, nullptr, true);
+}
+
+template <class Pose>
+LocalSolution LocalProblems<Pose>::Solve(const std::vector<char>& sessions,
+                                         const std::vector<int>& loops,
+                                         double alignment_cap,
+                                         std::vector<Pose>* estimate,
+                                         bool split_sides) {
   const PoseGraph<Pose>& graph = *graph_;
   const int num_sessions = graph.num_sessions();
   IRRR_CHECK(static_cast<int>(sessions.size()) == num_sessions);
@@ -122,21 +137,45 @@ LocalSolution LocalProblems<Pose>::Solve(const std::vector<char>& sessions,
   AlignFrames(graph, loops, group_of_session, alignment_cap, &x);
 
   // The subproblem: one session per span, then the loops.
+  struct Span {
+    int session;
+    int first;
+    int last;
+  };
+  std::vector<Span> spans;
+  for (int s = 0; s < num_sessions; ++s) {
+    if (first[s] >= 0) spans.push_back({s, first[s], last[s]});
+  }
+  if (split_sides && spans.size() == 1) {
+    // One session: its loops' later ends (side a) and earlier ends (side b), each a span of its
+    // own if they do not overlap; the odometry between them is left out.
+    int first_a = std::numeric_limits<int>::max();
+    int last_b = -1;
+    for (int e : loops) {
+      const int p = position(graph.edge(e).from);
+      const int q = position(graph.edge(e).to);
+      first_a = std::min(first_a, std::max(p, q));
+      last_b = std::max(last_b, std::min(p, q));
+    }
+    if (last_b < first_a) {
+      const Span whole = spans.front();
+      spans = {{whole.session, whole.first, last_b}, {whole.session, first_a, whole.last}};
+    }
+  }
   PoseGraph<Pose> sub;
   std::vector<int> graph_edge_of_sub;
   std::vector<int> sub_vertex(graph.num_vertices(), -1);
   std::vector<Pose> sub_x;
-  for (int s = 0; s < num_sessions; ++s) {
-    if (first[s] < 0) continue;
+  for (size_t k_span = 0; k_span < spans.size(); ++k_span) {
+    const Span& span = spans[k_span];
     int sub_session = -1;
-    IRRR_CHECK(sub.AddSession(s, &sub_session).ok());
-    const std::vector<int>& vertices = graph.session(s).vertices;
-    for (int k = first[s]; k <= last[s]; ++k) {
+    IRRR_CHECK(sub.AddSession(static_cast<int64_t>(k_span), &sub_session).ok());
+    const std::vector<int>& vertices = graph.session(span.session).vertices;
+    for (int k = span.first; k <= span.last; ++k) {
       const int v = vertices[k];
       const Edge<Pose>* odometry = nullptr;
-      int odometry_edge = -1;
-      if (k > first[s]) {
-        odometry_edge = graph.OdometryInto(v);
+      if (k > span.first) {
+        const int odometry_edge = graph.OdometryInto(v);
         odometry = &graph.edge(odometry_edge);
         graph_edge_of_sub.push_back(odometry_edge);
       }
@@ -197,6 +236,12 @@ LocalSolution LocalProblems<Pose>::Solve(const std::vector<char>& sessions,
   summary.residual_dimension = Pose::kDim * summary.num_active_edges;
   summary.free_parameters = Pose::kDim * (poses - components);
   summary.num_components = components;
+  if (spans.size() == 2 && spans[0].session == spans[1].session) {
+    // Split sides: the odometry between them is left out, d more rows than free parameters.
+    summary.residual_dimension -= Pose::kDim * (spans[1].first - spans[0].last);
+    summary.free_parameters -= Pose::kDim * (spans[1].first - spans[0].last - 1);
+    summary.num_active_edges -= spans[1].first - spans[0].last;
+  }
   solution.chi2 = summary.final_chi2;
   solution.dof = summary.residual_dimension - summary.free_parameters;
 

@@ -49,10 +49,24 @@ class LocalProblems {
   // The sessions the loops touch.
   std::vector<char> SessionsOf(const std::vector<int>& loops) const;
 
+  // The loops' redundancy among themselves: as Solve, but for loops within one session whose
+  // later ends all come after their earlier ends, the odometry between the two sides is left out
+  // (the two sides are optimized as two sessions joined only by the loops). What remains is the
+  // loops' agreement with each other and with the short odometry along each side, d x (loops - 1)
+  // degrees of freedom: noise only, whatever relative pose the loops claim between the sides
+  // (the long odometry between them, bent by a wrong claim, says nothing of the noise).
+  LocalSolution InternalRedundancy(const std::vector<int>& loops, double alignment_cap);
+
   int solves() const { return solves_; }
   int iterations() const { return iterations_; }
 
  private:
+  LocalSolution Solve(const std::vector<char>& sessions,
+                      const std::vector<int>& loops,
+                      double alignment_cap,
+                      std::vector<Pose>* estimate,
+                      bool split_sides);
+
   const PoseGraph<Pose>* graph_;
   const std::vector<Pose>* dead_reckoning_;
   Optimizer<Pose> optimizer_;

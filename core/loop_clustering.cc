@@ -5,9 +5,9 @@
 
 namespace irrr {
 
-LoopClusterer::LoopClusterer(double time_gap, int max_size)
-    : time_gap_(time_gap), max_size_(max_size) {
-  IRRR_CHECK(time_gap >= 0.0 && max_size >= 0);
+LoopClusterer::LoopClusterer(double time_gap, double max_span)
+    : time_gap_(time_gap), max_span_(max_span) {
+  IRRR_CHECK(time_gap >= 0.0 && max_span >= 0.0);
 }
 
 int LoopClusterer::AddLink(
@@ -24,7 +24,6 @@ int LoopClusterer::AddLink(
   for (int index : open_) {  // ascending: the oldest fitting cluster wins
     const LoopCluster& c = clusters_[index];
     if (c.session_a != session_a || c.session_b != session_b) continue;
-    if (max_size_ > 0 && static_cast<int>(c.links.size()) >= max_size_) continue;  // full
     for (size_t m = 0; m < c.links.size(); ++m) {
       if (std::abs(t_a - c.stamps_a[m]) <= time_gap_ &&
           std::abs(t_b - c.stamps_b[m]) <= time_gap_) {
@@ -41,6 +40,7 @@ int LoopClusterer::AddLink(
     fresh.session_b = session_b;
     fresh.newest_a = t_a;
     fresh.newest_b = t_b;
+    fresh.oldest_a = t_a;
     clusters_.push_back(fresh);
     open_.push_back(chosen);
   }
@@ -50,6 +50,7 @@ int LoopClusterer::AddLink(
   c.stamps_b.push_back(t_b);
   c.newest_a = std::max(c.newest_a, t_a);
   c.newest_b = std::max(c.newest_b, t_b);
+  c.oldest_a = std::min(c.oldest_a, t_a);
   return chosen;
 }
 
@@ -64,7 +65,10 @@ std::vector<int> LoopClusterer::CloseDue() {
   std::vector<int> still_open;
   for (int index : open_) {
     LoopCluster& c = clusters_[index];
-    if (SidePassed(c.session_a, c.newest_a) && SidePassed(c.session_b, c.newest_b)) {
+    const bool spanned = max_span_ > 0.0 && c.session_a < static_cast<int>(clocks_.size()) &&
+                         clocks_[c.session_a].seen &&
+                         clocks_[c.session_a].newest > c.oldest_a + max_span_;
+    if (spanned || (SidePassed(c.session_a, c.newest_a) && SidePassed(c.session_b, c.newest_b))) {
       c.closed = true;
       closed.push_back(index);
     } else {

@@ -11,7 +11,11 @@
 // and starts a new cluster otherwise; when it fits several open clusters it joins the oldest
 // (clusters are never merged). A cluster closes when, on each of its two sides, the session has
 // ended or its newest pose is more than t_g past the cluster's newest member on that side; or on
-// an explicit flush. Closed clusters never grow.
+// an explicit flush. Beyond the paper, a bound on a cluster's span: it also closes once its "a"
+// session's newest pose is more than `max_span` past its oldest member on that side, so that a
+// place revisited without pause (or hypotheses that keep chaining in) is judged in pieces, each
+// at most max_span + t_g after its first link, instead of once at the end. Closed clusters never
+// grow.
 
 #include <vector>
 
@@ -27,6 +31,7 @@ struct LoopCluster {
   std::vector<double> stamps_b;
   double newest_a = 0.0;  // largest member stamp on each side
   double newest_b = 0.0;
+  double oldest_a = 0.0;  // smallest member stamp on side a
   bool closed = false;
 
   bool IsInterSession() const { return session_a != session_b; }
@@ -35,9 +40,8 @@ struct LoopCluster {
 class LoopClusterer {
  public:
   // `time_gap` is t_g, in the units of the stamps (seconds, or poses for files); must be >= 0.
-  // `max_size` > 0 bounds a cluster's links: a full cluster takes no more, and a link that would
-  // have joined it joins another or starts a new one (0: unbounded, the paper's rule).
-  explicit LoopClusterer(double time_gap, int max_size = 0);
+  // `max_span` > 0 bounds a cluster's span (see above; 0: unbounded, the paper's rule).
+  explicit LoopClusterer(double time_gap, double max_span = 0.0);
 
   // Adds link `link_id` between (session_1, stamp_1) and (session_2, stamp_2); returns the index of
   // the cluster it joined or started.
@@ -66,7 +70,7 @@ class LoopClusterer {
   std::vector<int> CloseDue();
 
   double time_gap_;
-  int max_size_;
+  double max_span_;
   std::vector<LoopCluster> clusters_;
   std::vector<int> open_;  // indices of open clusters, ascending
   std::vector<SessionClock> clocks_;

@@ -278,4 +278,35 @@ Pose3::Tangent RelativePoseResidual<Pose3>(const Pose3& measurement,
   return r;
 }
 
+template <>
+Pose2::Matrix Adjoint<Pose2>(const Pose2& pose) {
+  Pose2::Matrix adjoint = Pose2::Matrix::Identity();
+  adjoint.topLeftCorner<2, 2>() = pose.rotation();
+  adjoint(0, 2) = pose.translation().y();
+  adjoint(1, 2) = -pose.translation().x();
+  return adjoint;
+}
+
+template <>
+Pose3::Matrix Adjoint<Pose3>(const Pose3& pose) {
+  Pose3::Matrix adjoint = Pose3::Matrix::Zero();
+  const Eigen::Matrix3d rotation = pose.rotation();
+  adjoint.topLeftCorner<3, 3>() = rotation;
+  adjoint.bottomRightCorner<3, 3>() = rotation;
+  adjoint.topRightCorner<3, 3>() = Skew(pose.translation()) * rotation;
+  return adjoint;
+}
+
+template <>
+Pose2::Matrix TangentOfErrorVector<Pose2>() {
+  return Pose2::Matrix::Identity();
+}
+
+template <>
+Pose3::Matrix TangentOfErrorVector<Pose3>() {
+  Pose3::Matrix m = Pose3::Matrix::Identity();
+  m.bottomRightCorner<3, 3>() *= 2.0;
+  return m;
+}
+
 }  // namespace irrr

@@ -108,6 +108,18 @@ Eigen::Vector3d LogSO3(const Eigen::Quaterniond& q);
 // Skew-symmetric matrix [v]x with [v]x * w = v x w.
 Eigen::Matrix3d Skew(const Eigen::Vector3d& v);
 
+// The adjoint of a pose: T * Exp(xi) * T^-1 = Exp(Adjoint(T) * xi), so that a perturbation in
+// the frame of T's "to" side is moved to its "from" side (first order, tangent as Exp's).
+template <class Pose>
+typename Pose::Matrix Adjoint(const Pose& pose);
+
+// d(tangent)/d(ErrorVector) at the identity: how a small error in g2o's chart (the residual, whose
+// covariance is the inverse information) reads as a perturbation x * Exp(xi). The identity in
+// SE(2); in SE(3) the quaternion's vector part is half the rotation vector, so diag(1, 1, 1, 2,
+// 2, 2).
+template <class Pose>
+typename Pose::Matrix TangentOfErrorVector();
+
 // Residual of a relative-pose constraint (paper eq. 1, in g2o's error chart):
 //   r = ErrorVector(measurement^-1 * (from^-1 * to)),
 // so that d^2 = r' * information * r (eq. 2). When non-null, J_r_from and J_r_to receive the

@@ -51,12 +51,14 @@ struct WarmEngine<Pose>::Impl {
         book(b),
         estimate(e),
         problems(g, dead_reckoning, o->optimizer),
+        pairwise(g, dead_reckoning),
         good(g, e, IncrementalSolverOptions()) {}
 
   // ---- thresholds and the variance factor -------------------------------------------------
 
   TestThresholds Thresholds() const {
-    return TestThresholds{options->alpha, variance, variance_dof};
+    return TestThresholds{
+        options->alpha, test_variance > 0.0 ? test_variance : variance, variance_dof};
   }
   double Threshold(double dof) const { return Thresholds().Of(dof); }
   double LinkThreshold() const { return Threshold(d); }
@@ -118,10 +120,12 @@ struct WarmEngine<Pose>::Impl {
   // again, until none fails (a trimmed estimate: one wrong link among many true ones dominates the
   // cluster's chi2 and stands out against it). The cluster itself is unchanged.
   void Calibrate(int q) {
-    std::vector<int> links = book->clusters[q].links;
+    // The largest set of pairwise consistent links at the nominal scale (the factor is at most 1):
+    // wrong groups clustered with true loops, or with each other, are not noise.
+    std::vector<int> links = pairwise.ConsistentSubsets(
+        book->clusters[q].links, PairwiseThreshold<Pose>(TestThresholds{options->alpha, 1.0}))[0];
     for (int round = 0; round < kCalibrationRounds && links.size() >= 2; ++round) {
-      const LocalSolution solution =
-          problems.Solve(problems.SessionsOf(links), links, AlignmentCap());
+      const LocalSolution solution = problems.InternalRedundancy(links, AlignmentCap());
       if (!solution.ok() || solution.dof <= 0.0) break;
       book->clusters[q].redundancy_chi2 = solution.chi2;
       book->clusters[q].redundancy_dof = solution.dof;
@@ -293,7 +297,7 @@ struct WarmEngine<Pose>::Impl {
     if (component_a == component_b) Screen(k, component_a, changed);
     std::vector<int> splits;
     if (book->clusters[k].links.empty() ||
-        !WarmIntraCluster(&problems, Thresholds(), k, book, changed, &splits)) {
+        !WarmIntraCluster(&problems, &pairwise, Thresholds(), k, book, changed, &splits)) {
       book->clusters[k].in_reject = true;
       return;
     }
@@ -332,7 +336,7 @@ struct WarmEngine<Pose>::Impl {
       }
       std::sort(vertices.begin(), vertices.end());
       vertices.erase(std::unique(vertices.begin(), vertices.end()), vertices.end());
-      const Eigen::MatrixXd covariance = good.Covariance(component, vertices);
+      const Eigen::MatrixXd covariance = good.Covariance(vertices);
       for (size_t k = first; k < last; ++k) {
         const int e = links[k];
         const Edge<Pose>& edge = graph->edge(e);
@@ -421,12 +425,11 @@ struct WarmEngine<Pose>::Impl {
     // and its own (the noise varies along a trajectory; Algorithm 1's graph test has already
     // bounded its own factor by the global one's threshold).
     const JudgedCluster& c = book->clusters[q];
-    const double global = variance;
     if (c.redundancy_dof >= kScaleMinimumDof) {
-      variance = std::max(global, c.redundancy_chi2 / c.redundancy_dof);
+      test_variance = std::max(variance, c.redundancy_chi2 / c.redundancy_dof);
     }
     JointTestAtScale(q, result);
-    variance = global;
+    test_variance = 0.0;
   }
 
   void JointTestAtScale(int q, StepResult* result) {
@@ -588,8 +591,11 @@ struct WarmEngine<Pose>::Impl {
   DecisionBook* book;
   std::vector<Pose>* estimate;
   LocalProblems<Pose> problems;
+  PairwiseConsistency<Pose> pairwise;
   GoodSet<Pose> good;
-  double variance = 1.0;
+  double variance = 1.0;  // the factor of the tests (the estimate, at most 1)
+  // A cluster with redundancy enough of its own is judged at a larger factor (JointTest); 0: none.
+  double test_variance = 0.0;
   double variance_estimate = 1.0;
   double variance_dof = std::numeric_limits<double>::infinity();
   bool scale_known = false;
@@ -611,6 +617,7 @@ WarmEngine<Pose>::~WarmEngine() = default;
 template <class Pose>
 void WarmEngine<Pose>::AddPose(int vertex) {
   impl_->good.AddPose(vertex);
+  impl_->pairwise.Update();
 }
 
 template <class Pose>

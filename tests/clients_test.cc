@@ -92,6 +92,7 @@ TEST_CASE("Every key of the irrr section is read into its field", "[config]") {
       {"alpha", 0.99},
       {"variance_factor", 0.5},
       {"cluster_gap", 12.5},
+      {"cluster_span", 2.5},
       {"graph_dof", "exact"},
       {"optimizer",
        {{"algorithm", "levenberg_marquardt"},
@@ -111,6 +112,7 @@ TEST_CASE("Every key of the irrr section is read into its field", "[config]") {
   CHECK(options.alpha == 0.99);
   CHECK(options.variance_factor == 0.5);
   CHECK(options.cluster_gap == 12.5);
+  CHECK(options.cluster_span == 2.5);
   CHECK(options.graph_dof == GraphDegreesOfFreedom::kExact);
   CHECK(options.optimizer.algorithm == OptimizerAlgorithm::kLevenbergMarquardt);
   CHECK(options.optimizer.max_iterations == 7);

@@ -22,17 +22,31 @@ TEST_CASE("Links near an open cluster's members join it (eq. 6)", "[loop_cluster
   CHECK(clusterer.cluster(0).newest_b == 36.0);
 }
 
-TEST_CASE("A full cluster (max_size) takes no more links; the next starts a new one",
+TEST_CASE("A cluster closes once it spans max_span on its later side; the next link starts anew",
           "[loop_clustering]") {
-  LoopClusterer clusterer(kGap, 3);
-  for (int k = 0; k < 3; ++k) CHECK(clusterer.AddLink(k, 0, 100.0 + k, 0, 20.0 + k) == 0);
-  CHECK(clusterer.AddLink(3, 0, 103.0, 0, 23.0) == 1);  // would join cluster 0, which is full
-  CHECK(clusterer.AddLink(4, 0, 104.0, 0, 24.0) == 1);
-  CHECK(clusterer.cluster(0).links == std::vector<int>{0, 1, 2});
-  CHECK(clusterer.cluster(1).links == std::vector<int>{3, 4});
-  // Unbounded (the paper): all five in one.
+  LoopClusterer clusterer(kGap, 4 * kGap);
+  // A revisit that never pauses: one link per pose, each within the gap of the one before.
+  int closed_at = -1;
+  for (int k = 0; k < 100; ++k) {
+    const double t = 100.0 + k;
+    const int cluster = clusterer.AddLink(k, 0, t, 0, t - 80.0);
+    if (closed_at < 0) CHECK(cluster == 0);
+    const std::vector<int> closed = clusterer.AdvanceSession(0, t + 1.0);
+    if (!closed.empty() && closed_at < 0) {
+      CHECK(closed == std::vector<int>{0});
+      closed_at = k;
+    }
+  }
+  // Closed when the newest pose passed the oldest member (100) by 4 gaps (40).
+  CHECK(closed_at == 40);
+  CHECK(clusterer.cluster(0).links.size() == 41);
+  CHECK(clusterer.cluster(1).links.front() == 41);
+  // Unbounded (the paper): one cluster that closes only at the end.
   LoopClusterer unbounded(kGap);
-  for (int k = 0; k < 5; ++k) CHECK(unbounded.AddLink(k, 0, 100.0 + k, 0, 20.0 + k) == 0);
+  for (int k = 0; k < 100; ++k) {
+    CHECK(unbounded.AddLink(k, 0, 100.0 + k, 0, 20.0 + k) == 0);
+    CHECK(unbounded.AdvanceSession(0, 101.0 + k).empty());
+  }
 }
 
 TEST_CASE("Links are oriented, so either direction lands in the same cluster",

@@ -683,3 +683,43 @@ TEST_CASE("The SE(3) residual matches hand-computed values", "[pose]") {
 
 }  // namespace
 }  // namespace irrr
+
+namespace irrr {
+namespace {
+
+// Conjugation by T moves a perturbation across T: Log(T Exp(xi) T^-1) = Ad(T) xi + O(|xi|^2).
+// With |xi| = 1e-6 and 10 m poses the second-order term is ~1e-11.
+constexpr double kFirstOrderTolerance = 1e-9;
+
+TEMPLATE_TEST_CASE("Adjoint moves a small perturbation across a pose", "[pose]", Pose2, Pose3) {
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> uniform(-1.0, 1.0);
+  for (int k = 0; k < 200; ++k) {
+    typename TestType::Tangent xi;
+    typename TestType::Tangent small;
+    for (int i = 0; i < TestType::kDim; ++i) {
+      xi(i) = 10.0 * uniform(rng);
+      small(i) = 1e-6 * uniform(rng);
+    }
+    const TestType T = TestType::Exp(xi);
+    const typename TestType::Tangent moved = (T * TestType::Exp(small) * T.Inverse()).Log();
+    CHECK((moved - Adjoint(T) * small).norm() < kFirstOrderTolerance);
+  }
+}
+
+TEMPLATE_TEST_CASE("TangentOfErrorVector reads a small error in g2o's chart as a tangent",
+                   "[pose]",
+                   Pose2,
+                   Pose3) {
+  std::mt19937 rng(8);
+  std::uniform_real_distribution<double> uniform(-1.0, 1.0);
+  for (int k = 0; k < 200; ++k) {
+    typename TestType::Tangent small;
+    for (int i = 0; i < TestType::kDim; ++i) small(i) = 1e-6 * uniform(rng);
+    const typename TestType::Tangent chart = TestType::Exp(small).ErrorVector();
+    CHECK((TangentOfErrorVector<TestType>() * chart - small).norm() < kFirstOrderTolerance);
+  }
+}
+
+}  // namespace
+}  // namespace irrr

@@ -1,0 +1,185 @@
+#include "core/pairwise_consistency.h"
+
+#include <algorithm>
+#include <limits>
+
+#include <Eigen/Cholesky>
+
+namespace irrr {
+namespace {
+
+// Seeds tried by ConsistentSubsets' greedy search (those with the most consistent partners): the
+// true links of a cluster are consistent with one another, so any of them grows the same set.
+constexpr size_t kSeeds = 8;
+
+}  // namespace
+
+template <class Pose>
+PairwiseConsistency<Pose>::PairwiseConsistency(const PoseGraph<Pose>* graph,
+                                               const std::vector<Pose>* dead_reckoning)
+    : graph_(graph), dead_reckoning_(dead_reckoning) {}
+
+template <class Pose>
+void PairwiseConsistency<Pose>::Update() {
+  const PoseGraph<Pose>& graph = *graph_;
+  const Matrix M = TangentOfErrorVector<Pose>();
+  for (int v = static_cast<int>(prefix_.size()); v < graph.num_vertices(); ++v) {
+    const int odometry = graph.OdometryInto(v);
+    if (odometry < 0) {
+      prefix_.push_back(Matrix::Zero());
+      position_.push_back(0);
+      continue;
+    }
+    const int previous = graph.edge(odometry).from;
+    // Step k's noise, in the session's frame: Ad(x_k+1) M C M' Ad(x_k+1)'.
+    const Matrix adjoint = Adjoint((*dead_reckoning_)[v]) * M;
+    const Matrix covariance = graph.edge(odometry).information.inverse();
+    prefix_.push_back(prefix_[previous] + adjoint * covariance * adjoint.transpose());
+    position_.push_back(position_[previous] + 1);
+  }
+}
+
+template <class Pose>
+typename PairwiseConsistency<Pose>::Matrix PairwiseConsistency<Pose>::RelativeCovariance(
+    int session, int p, int q) const {
+  const std::vector<int>& vertices = graph_->session(session).vertices;
+  const std::vector<Pose>& x = *dead_reckoning_;
+  if (p == q) return Matrix::Zero();
+  const int first = std::min(p, q);
+  const int last = std::max(p, q);
+  // D(first -> last), perturbed on its right: Ad(x_last)^-1 (S_last - S_first) Ad(x_last)^-T.
+  const Matrix to_last = Adjoint(x[vertices[last]].Inverse());
+  const Matrix forward =
+      to_last * (prefix_[vertices[last]] - prefix_[vertices[first]]) * to_last.transpose();
+  if (p < q) return forward;
+  // D(p -> q) = D(q -> p)^-1: (T Exp(e))^-1 = T^-1 Exp(-Ad(T) e).
+  const Matrix adjoint = Adjoint(x[vertices[q]].Inverse() * x[vertices[p]]);
+  return adjoint * forward * adjoint.transpose();
+}
+
+template <class Pose>
+double PairwiseConsistency<Pose>::Statistic(int l, int m) const {
+  if (l == m) return 0.0;
+  const PoseGraph<Pose>& graph = *graph_;
+  const std::vector<Pose>& x = *dead_reckoning_;
+  const Matrix M = TangentOfErrorVector<Pose>();
+  struct Oriented {
+    int a = -1;  // the end on side A (the higher session, or the later pose of one session)
+    int b = -1;
+    Pose z;             // x_a^-1 x_b as measured
+    Matrix covariance;  // of z, as a perturbation on its right
+  };
+  auto orient = [&](int e) {
+    const Edge<Pose>& edge = graph.edge(e);
+    const Vertex& from = graph.vertex(edge.from);
+    const Vertex& to = graph.vertex(edge.to);
+    const bool from_is_a = from.session != to.session ? from.session > to.session
+                                                      : position_[edge.from] >= position_[edge.to];
+    Oriented o;
+    o.covariance = M * edge.information.inverse() * M.transpose();
+    if (from_is_a) {
+      o.a = edge.from;
+      o.b = edge.to;
+      o.z = edge.measurement;
+    } else {
+      o.a = edge.to;
+      o.b = edge.from;
+      o.z = edge.measurement.Inverse();
+      const Matrix adjoint = Adjoint(edge.measurement);
+      o.covariance = adjoint * o.covariance * adjoint.transpose();
+    }
+    return o;
+  };
+  const Oriented first = orient(l);
+  const Oriented second = orient(m);
+  const int session_a = graph.vertex(first.a).session;
+  const int session_b = graph.vertex(first.b).session;
+  IRRR_CHECK(graph.vertex(second.a).session == session_a &&
+             graph.vertex(second.b).session == session_b);
+  // e = B^-1 L^-1 A Z with A = D(a_l -> a_m), B = D(b_l -> b_m), L = z_l, Z = z_m.
+  const Pose A = x[first.a].Inverse() * x[second.a];
+  const Pose B = x[first.b].Inverse() * x[second.b];
+  const Pose& L = first.z;
+  const Pose& Z = second.z;
+  const Pose e = B.Inverse() * L.Inverse() * A * Z;
+  const Matrix K_A = Adjoint(Z.Inverse());
+  const Matrix K_L = -Adjoint(Z.Inverse() * A.Inverse() * L);
+  const Matrix K_B = -Adjoint(Z.Inverse() * A.Inverse() * L * B);
+  const Matrix C_A = RelativeCovariance(session_a, position_[first.a], position_[second.a]);
+  const Matrix C_B = RelativeCovariance(session_b, position_[first.b], position_[second.b]);
+  const Matrix covariance = K_A * C_A * K_A.transpose() + K_B * C_B * K_B.transpose() +
+                            K_L * first.covariance * K_L.transpose() + second.covariance;
+  const typename Pose::Tangent r = e.Log();
+  const Eigen::LDLT<Matrix> ldlt(0.5 * (covariance + covariance.transpose()));
+  if (ldlt.info() != Eigen::Success) return std::numeric_limits<double>::infinity();
+  return r.dot(ldlt.solve(r));
+}
+
+template <class Pose>
+std::vector<std::vector<int>> PairwiseConsistency<Pose>::ConsistentSubsets(
+    const std::vector<int>& links, double threshold) const {
+  const int n = static_cast<int>(links.size());
+  std::vector<std::vector<char>> consistent(n, std::vector<char>(n, 1));
+  for (int i = 0; i < n; ++i) {
+    for (int j = i + 1; j < n; ++j) {
+      consistent[i][j] = consistent[j][i] = Statistic(links[i], links[j]) < threshold ? 1 : 0;
+    }
+  }
+  std::vector<std::vector<int>> subsets;
+  std::vector<int> remaining(n);
+  for (int i = 0; i < n; ++i) remaining[i] = i;
+  while (!remaining.empty()) {
+    // Partners of each remaining link among the remaining ones.
+    std::vector<int> degree(n, 0);
+    for (int i : remaining) {
+      for (int j : remaining) degree[i] += i != j && consistent[i][j] ? 1 : 0;
+    }
+    std::vector<int> seeds = remaining;
+    std::stable_sort(
+        seeds.begin(), seeds.end(), [&](int a, int b) { return degree[a] > degree[b]; });
+    if (seeds.size() > kSeeds) seeds.resize(kSeeds);
+    std::vector<int> best;
+    for (int seed : seeds) {
+      std::vector<int> clique = {seed};
+      std::vector<int> candidates;
+      for (int j : remaining) {
+        if (j != seed && consistent[seed][j]) candidates.push_back(j);
+      }
+      while (!candidates.empty()) {
+        // The candidate consistent with most of the other candidates joins.
+        int pick = -1;
+        int pick_partners = -1;
+        for (int c : candidates) {
+          int partners = 0;
+          for (int o : candidates) partners += o != c && consistent[c][o] ? 1 : 0;
+          if (partners > pick_partners) {
+            pick = c;
+            pick_partners = partners;
+          }
+        }
+        clique.push_back(pick);
+        std::vector<int> still;
+        for (int c : candidates) {
+          if (c != pick && consistent[pick][c]) still.push_back(c);
+        }
+        candidates.swap(still);
+      }
+      if (clique.size() > best.size()) best = clique;
+    }
+    std::sort(best.begin(), best.end());
+    std::vector<int> subset;
+    for (int i : best) subset.push_back(links[i]);
+    subsets.push_back(subset);
+    std::vector<int> rest;
+    for (int i : remaining) {
+      if (!std::binary_search(best.begin(), best.end(), i)) rest.push_back(i);
+    }
+    remaining.swap(rest);
+  }
+  return subsets;
+}
+
+template class PairwiseConsistency<Pose2>;
+template class PairwiseConsistency<Pose3>;
+
+}  // namespace irrr

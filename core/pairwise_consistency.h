@@ -1,0 +1,68 @@
+#ifndef IRRR_CORE_PAIRWISE_CONSISTENCY_H_
+#define IRRR_CORE_PAIRWISE_CONSISTENCY_H_
+
+// Which loop hypotheses of a cluster agree with each other, two at a time (beyond the paper; the
+// pairwise consistency of PCM, Mangelson et al. 2018). Two links l and m of a cluster join the
+// same two stretches of odometry, side A and side B. With each link oriented A -> B (z: the pose
+// of its B end in the frame of its A end), the cycle they close with the odometry between their
+// ends,
+//   e = D(b_l -> b_m)^-1 * z_l^-1 * D(a_l -> a_m) * z_m      (D: dead reckoning along a session)
+// is the identity when both are right. Its covariance, to first order, is that of the two links
+// and of the two odometry stretches, moved into e's frame by adjoints; the statistic
+//   Log(e)' Cov(e)^-1 Log(e)
+// is chi-square with Pose::kDim degrees of freedom (times the variance factor). It uses the
+// short odometry along each side only, never the long odometry between the sides: a wrong group
+// whose links agree with each other cannot hide in a long chain's slack, and one link that
+// contradicts the rest stands out against each of them.
+//
+// Odometry covariances come from prefix sums along each session's dead reckoning, so a pair costs
+// the same whatever the distance between its links.
+
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "core/pose_graph.h"
+
+namespace irrr {
+
+template <class Pose>
+class PairwiseConsistency {
+ public:
+  using Matrix = typename Pose::Matrix;
+
+  // `graph` and `dead_reckoning` (one pose per vertex, each session from the identity) must
+  // outlive this object; both may grow, and Update() takes in what was added.
+  PairwiseConsistency(const PoseGraph<Pose>* graph, const std::vector<Pose>* dead_reckoning);
+
+  // Extends the odometry prefix sums to every vertex of the graph.
+  void Update();
+
+  // The statistic of links l and m (graph edge indices, loops of one cluster: the same two
+  // sessions, the same orientation of sides). Symmetric in l and m; 0 for l == m.
+  double Statistic(int l, int m) const;
+
+  // The links' largest set of pairwise consistent ones (statistic below `threshold`), found
+  // greedily (each link tried as a seed; members added by their number of consistent partners),
+  // then the largest among the rest, and so on: every link in exactly one subset, subsets largest
+  // first, each in the order of `links`.
+  std::vector<std::vector<int>> ConsistentSubsets(const std::vector<int>& links,
+                                                  double threshold) const;
+
+ private:
+  // The covariance of the relative dead reckoning from the p-th to the q-th pose of a session,
+  // as a perturbation on its right (D(p -> q) * Exp(xi)).
+  Matrix RelativeCovariance(int session, int p, int q) const;
+
+  const PoseGraph<Pose>* graph_;
+  const std::vector<Pose>* dead_reckoning_;
+  std::vector<Matrix> prefix_;  // per vertex: the sum of its session's odometry noise up to it
+  std::vector<int> position_;   // per vertex: its place in its session
+};
+
+extern template class PairwiseConsistency<Pose2>;
+extern template class PairwiseConsistency<Pose3>;
+
+}  // namespace irrr
+
+#endif  // IRRR_CORE_PAIRWISE_CONSISTENCY_H_
