@@ -6,7 +6,7 @@
 //              [--plot MAP.svg|MAP.png]
 //
 // --plot draws the map with every decision, the initial guess beside it, the time of every iRRR
-// step and, with --ground-truth, the ATE histogram (clients/plots.h).
+// step and, with --ground-truth, the ATE histogram (clients/common/plots.h).
 // Options come from the "irrr" object of the configuration file (if any), then from the command
 // line, which overrides it. Exit codes follow sysexits.h: 64 usage, 65 bad input data, 66 input
 // missing, 70 optimizer failure, 73 output not written, 78 bad configuration.
@@ -26,16 +26,16 @@
 #include <fmt/ranges.h>
 #include <CLI/CLI.hpp>
 
-#include "clients/allocator.h"
-#include "clients/graph_files.h"
-#include "clients/irrr_config.h"
-#include "clients/loop_csv.h"
-#include "clients/plots.h"
-#include "clients/thread_pool.h"
+#include "clients/common/graph_files.h"
+#include "clients/common/loop_csv.h"
+#include "clients/common/plots.h"
 #include "core/graph_io.h"
 #include "core/irrr.h"
 #include "core/optimizer.h"
 #include "core/trajectory_metrics.h"
+#include "daemon/common/allocator.h"
+#include "daemon/common/irrr_config.h"
+#include "daemon/common/thread_pool.h"
 
 namespace irrr {
 namespace {

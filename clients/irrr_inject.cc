@@ -34,9 +34,9 @@
 #include <CLI/CLI.hpp>
 #include <lcm/lcm-cpp.hpp>
 
-#include "clients/graph_files.h"
-#include "clients/irrr_config.h"
-#include "clients/replay_messages.h"
+#include "clients/common/graph_files.h"
+#include "clients/common/replay_messages.h"
+#include "daemon/common/irrr_config.h"
 #include "daemon/raw_subscription.h"
 #include "daemon/wire.h"
 #include "irrr/resync_request_t.hpp"

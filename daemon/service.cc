@@ -12,7 +12,7 @@
 #include <fmt/core.h>
 #include <spdlog/spdlog.h>
 
-#include "clients/thread_pool.h"
+#include "daemon/common/thread_pool.h"
 #include "daemon/sequencer.h"
 #include "daemon/snapshot.h"
 #include "daemon/stamp_merger.h"

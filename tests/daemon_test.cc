@@ -24,11 +24,11 @@
 #include <catch2/catch.hpp>
 #include <lcm/lcm-cpp.hpp>
 
-#include "clients/graph_files.h"
-#include "clients/irrr_config.h"
-#include "clients/loop_csv.h"
-#include "clients/replay_messages.h"
+#include "clients/common/graph_files.h"
+#include "clients/common/loop_csv.h"
+#include "clients/common/replay_messages.h"
 #include "core/irrr.h"
+#include "daemon/common/irrr_config.h"
 #include "daemon/raw_subscription.h"
 #include "daemon/service.h"
 #include "daemon/wire.h"

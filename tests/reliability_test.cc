@@ -19,8 +19,8 @@
 #include <spdlog/spdlog.h>
 #include <catch2/catch.hpp>
 
-#include "clients/graph_files.h"
-#include "clients/replay_messages.h"
+#include "clients/common/graph_files.h"
+#include "clients/common/replay_messages.h"
 #include "core/irrr.h"
 #include "daemon/journal.h"
 #include "daemon/sequencer.h"

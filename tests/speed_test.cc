@@ -15,9 +15,9 @@
 
 #include <catch2/catch.hpp>
 
-#include "clients/thread_pool.h"
 #include "core/irrr.h"
 #include "core/outliers.h"
+#include "daemon/common/thread_pool.h"
 #include "tests/corrupted_graph.h"
 
 namespace irrr {

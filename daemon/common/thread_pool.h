@@ -1,5 +1,5 @@
-#ifndef IRRR_CLIENTS_THREAD_POOL_H_
-#define IRRR_CLIENTS_THREAD_POOL_H_
+#ifndef IRRR_DAEMON_COMMON_THREAD_POOL_H_
+#define IRRR_DAEMON_COMMON_THREAD_POOL_H_
 
 // A fixed pool of threads for core's ParallelFor (core runs no threads of its own). The calling
 // thread works too, so a pool of N threads starts N - 1; a pool of 1 runs everything inline.
@@ -56,4 +56,4 @@ class ThreadPool {
 
 }  // namespace irrr
 
-#endif  // IRRR_CLIENTS_THREAD_POOL_H_
+#endif  // IRRR_DAEMON_COMMON_THREAD_POOL_H_

@@ -29,12 +29,12 @@
 #include <fmt/core.h>
 #include <CLI/CLI.hpp>
 
-#include "clients/allocator.h"
-#include "clients/graph_files.h"
-#include "clients/thread_pool.h"
+#include "clients/common/graph_files.h"
 #include "core/irrr.h"
 #include "core/optimizer.h"
 #include "core/outliers.h"
+#include "daemon/common/allocator.h"
+#include "daemon/common/thread_pool.h"
 
 namespace irrr {
 namespace {

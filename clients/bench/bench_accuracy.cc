@@ -32,12 +32,12 @@
 #include <CLI/CLI.hpp>
 #include <Eigen/Geometry>
 
-#include "clients/allocator.h"
-#include "clients/graph_files.h"
+#include "clients/common/graph_files.h"
 #include "core/irrr.h"
 #include "core/optimizer.h"
 #include "core/outliers.h"
 #include "core/trajectory_metrics.h"
+#include "daemon/common/allocator.h"
 
 namespace irrr {
 namespace {

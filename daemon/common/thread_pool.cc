@@ -1,4 +1,4 @@
-#include "clients/thread_pool.h"
+#include "daemon/common/thread_pool.h"
 
 #include <algorithm>
 
