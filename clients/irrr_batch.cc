@@ -29,6 +29,7 @@
 #include "clients/common/graph_files.h"
 #include "clients/common/loop_csv.h"
 #include "clients/common/plots.h"
+#include "clients/common/progress_line.h"
 #include "core/graph_io.h"
 #include "core/irrr.h"
 #include "core/optimizer.h"
@@ -178,8 +179,13 @@ int Run(const BatchArguments& args, const IrrrOptions& options, FileFormat forma
     }
     Optimizer<Pose> optimizer(options.optimizer);
     const auto solve_start = std::chrono::steady_clock::now();
-    const OptimizerSummary summary =
-        optimizer.Solve(graph, std::vector<char>(graph.num_edges(), 1), &estimate);
+    OptimizerSummary summary;
+    {
+      ProgressLine line;
+      ElapsedTicker ticker(
+          fmt::format("optimizing {} poses, every loop trusted", graph.num_vertices()), &line);
+      summary = optimizer.Solve(graph, std::vector<char>(graph.num_edges(), 1), &estimate);
+    }
     const double solve_s = SecondsSince(solve_start);
     fmt::print(
         "optimize  {} ({}): {} iterations, chi2 {:.6g} -> {:.6g}, {} component(s), "
@@ -196,26 +202,34 @@ int Run(const BatchArguments& args, const IrrrOptions& options, FileFormat forma
   } else {
     ThreadPool pool(args.threads > 0 ? args.threads : ThreadPool::DefaultThreads());
     const auto decide_start = std::chrono::steady_clock::now();
+    // On a terminal, a progress line on stderr while deciding (ProgressLine); nothing otherwise.
+    ProgressLine line;
     if (args.method == "rrr") {
+      ElapsedTicker ticker(fmt::format("batch RRR: deciding {} loop hypotheses", num_loops), &line);
       decisions = RunBatchRrr(graph, options, &estimate, pool.AsParallelFor(), pool.size());
     } else {
       // RunIncrementalIrrr's replay, with each step timed (for --plot).
       Irrr<Pose> irrr(options);
       irrr.SetParallelFor(pool.AsParallelFor(), pool.size());
       GraphReplay<Pose> replay(graph, &irrr);
+      ReplayProgress<Pose> progress(graph, "iRRR", &line);
       auto run_steps = [&]() {
         while (irrr.HasPendingStep()) {
           const auto step_start = std::chrono::steady_clock::now();
           steps.push_back(irrr.RunStep());
           step_ms.push_back(1e3 * SecondsSince(step_start));
+          progress.Show(irrr);
         }
       };
       for (const ArrivalEvent& event : ArrivalOrder(graph)) {
         replay.Apply(event);
+        progress.Fed(event);
+        progress.Show(irrr);
         run_steps();
       }
       irrr.Flush();
       run_steps();
+      line.Clear();
       decisions = replay.Decisions();
       estimate = replay.Estimate();
     }

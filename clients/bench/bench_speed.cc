@@ -30,6 +30,7 @@
 #include <CLI/CLI.hpp>
 
 #include "clients/common/graph_files.h"
+#include "clients/common/progress_line.h"
 #include "core/irrr.h"
 #include "core/optimizer.h"
 #include "core/outliers.h"
@@ -158,6 +159,9 @@ RunResult RunIncremental(const PoseGraph<Pose>& graph, const Variant& variant, d
   Irrr<Pose> irrr(variant.options);
   irrr.SetParallelFor(pool.AsParallelFor(), pool.size());
   GraphReplay<Pose> replay(graph, &irrr);
+  // On a terminal, a progress line on stderr (nothing otherwise).
+  ProgressLine line;
+  ReplayProgress<Pose> progress(graph, "  " + variant.name, &line);
   bool over_budget = false;
   auto run_steps = [&]() {
     while (irrr.HasPendingStep() && !over_budget) {
@@ -168,18 +172,22 @@ RunResult RunIncremental(const PoseGraph<Pose>& graph, const Variant& variant, d
       result.iterations += step.iterations;
       result.max_solves = std::max(result.max_solves, step.solves);
       over_budget = SecondsSince(start) > budget_s;
+      progress.Show(irrr);
     }
   };
   for (const ArrivalEvent& event : ArrivalOrder(graph)) {
     if (over_budget) break;
     result.poses_in += event.kind == ArrivalEvent::Kind::kPose ? 1 : 0;
     replay.Apply(event);
+    progress.Fed(event);
+    progress.Show(irrr);
     run_steps();
   }
   if (!over_budget) {
     irrr.Flush();
     run_steps();
   }
+  line.Clear();
   result.seconds = SecondsSince(start);
   result.steps = irrr.num_steps();
   result.peak_kb = StatusKb("VmHWM");
