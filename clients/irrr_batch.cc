@@ -6,7 +6,7 @@
 //              [--plot MAP.svg|MAP.png]
 //
 // --plot draws the map with every decision, the initial guess beside it, the time of every iRRR
-// step and, with --ground-truth, the ATE histogram (clients/plots.h).
+// step and, with --ground-truth, the ATE histogram (clients/common/plots.h).
 // Options come from the "irrr" object of the configuration file (if any), then from the command
 // line, which overrides it. Exit codes follow sysexits.h: 64 usage, 65 bad input data, 66 input
 // missing, 70 optimizer failure, 73 output not written, 78 bad configuration.
@@ -26,15 +26,16 @@
 #include <fmt/ranges.h>
 #include <CLI/CLI.hpp>
 
-#include "clients/allocator.h"
-#include "clients/graph_files.h"
-#include "clients/irrr_config.h"
-#include "clients/loop_csv.h"
-#include "clients/plots.h"
+#include "clients/common/graph_files.h"
+#include "clients/common/loop_csv.h"
+#include "clients/common/plots.h"
+#include "clients/common/progress_line.h"
 #include "core/graph_io.h"
 #include "core/irrr.h"
 #include "core/optimizer.h"
 #include "core/trajectory_metrics.h"
+#include "daemon/common/allocator.h"
+#include "daemon/common/irrr_config.h"
 
 namespace irrr {
 namespace {
@@ -176,8 +177,13 @@ int Run(const BatchArguments& args, const IrrrOptions& options, FileFormat forma
     }
     Optimizer<Pose> optimizer(options.optimizer);
     const auto solve_start = std::chrono::steady_clock::now();
-    const OptimizerSummary summary =
-        optimizer.Solve(graph, std::vector<char>(graph.num_edges(), 1), &estimate);
+    OptimizerSummary summary;
+    {
+      ProgressLine line;
+      ElapsedTicker ticker(
+          fmt::format("optimizing {} poses, every loop trusted", graph.num_vertices()), &line);
+      summary = optimizer.Solve(graph, std::vector<char>(graph.num_edges(), 1), &estimate);
+    }
     const double solve_s = SecondsSince(solve_start);
     fmt::print(
         "optimize  {} ({}): {} iterations, chi2 {:.6g} -> {:.6g}, {} component(s), "
@@ -193,25 +199,33 @@ int Run(const BatchArguments& args, const IrrrOptions& options, FileFormat forma
     if (!summary.IsSolutionUsable()) exit_code = EX_SOFTWARE;
   } else {
     const auto decide_start = std::chrono::steady_clock::now();
+    // On a terminal, a progress line on stderr while deciding (ProgressLine); nothing otherwise.
+    ProgressLine line;
     if (args.method == "rrr") {
+      ElapsedTicker ticker(fmt::format("batch RRR: deciding {} loop hypotheses", num_loops), &line);
       decisions = RunBatchRrr(graph, options, &estimate);
     } else {
       // RunIncrementalIrrr's replay, with each step timed (for --plot).
       Irrr<Pose> irrr(options);
       GraphReplay<Pose> replay(graph, &irrr);
+      ReplayProgress<Pose> progress(graph, "iRRR", &line);
       auto run_steps = [&]() {
         while (irrr.HasPendingStep()) {
           const auto step_start = std::chrono::steady_clock::now();
           steps.push_back(irrr.RunStep());
           step_ms.push_back(1e3 * SecondsSince(step_start));
+          progress.Show(irrr);
         }
       };
       for (const ArrivalEvent& event : ArrivalOrder(graph)) {
         replay.Apply(event);
+        progress.Fed(event);
+        progress.Show(irrr);
         run_steps();
       }
       irrr.Flush();
       run_steps();
+      line.Clear();
       decisions = replay.Decisions();
       estimate = replay.Estimate();
     }

@@ -23,8 +23,8 @@
 #include <fmt/core.h>
 #include <CLI/CLI.hpp>
 
-#include "clients/graph_files.h"
-#include "clients/loop_csv.h"
+#include "clients/common/graph_files.h"
+#include "clients/common/loop_csv.h"
 #include "core/graph_io.h"
 #include "core/outliers.h"
 #include "core/pose.h"

@@ -34,9 +34,10 @@
 #include <CLI/CLI.hpp>
 #include <lcm/lcm-cpp.hpp>
 
-#include "clients/graph_files.h"
-#include "clients/irrr_config.h"
-#include "clients/replay_messages.h"
+#include "clients/common/graph_files.h"
+#include "clients/common/progress_line.h"
+#include "clients/common/replay_messages.h"
+#include "daemon/common/irrr_config.h"
 #include "daemon/raw_subscription.h"
 #include "daemon/wire.h"
 #include "irrr/resync_request_t.hpp"
@@ -164,32 +165,36 @@ class Resender {
   std::map<std::string, Progress> progress_;
 };
 
-class ProgressBar {
+// The messages sent so far, as a bar that redraws in place on a terminal (ProgressLine); the
+// last state is printed as a line of its own, on a terminal or not.
+class SendProgress {
  public:
-  explicit ProgressBar(size_t total) : total_(total), tty_(isatty(STDERR_FILENO) != 0) {}
+  explicit SendProgress(size_t total) : total_(total) {}
   void Show(size_t done, double seconds, bool last = false) {
-    if (!tty_ && !last) return;
-    const auto now = std::chrono::steady_clock::now();
-    if (!last && now - shown_ < std::chrono::milliseconds(100)) return;
-    shown_ = now;
-    constexpr int kWidth = 30;
-    const int filled = total_ == 0 ? kWidth : static_cast<int>(kWidth * done / total_);
-    fmt::print(stderr,
-               "{}[{}{}] {}/{} messages, {:.1f} s, {:.0f} msg/s{}",
-               tty_ ? "\r" : "",
-               std::string(filled, '#'),
-               std::string(kWidth - filled, '.'),
-               done,
-               total_,
-               seconds,
-               seconds > 0 ? done / seconds : 0.0,
-               last ? "\n" : "");
+    if (!last) {
+      if (line_.Due()) line_.Update(Text(done, seconds));
+      return;
+    }
+    if (line_.enabled()) {
+      line_.Finish(Text(done, seconds));
+    } else {
+      fmt::print(stderr, "{}\n", Text(done, seconds));
+    }
   }
 
  private:
+  std::string Text(size_t done, double seconds) const {
+    constexpr int kWidth = 30;
+    return fmt::format("{} {}/{} messages, {:.1f} s, {:.0f} msg/s",
+                       ProgressBar(done, total_, kWidth),
+                       done,
+                       total_,
+                       seconds,
+                       seconds > 0 ? done / seconds : 0.0);
+  }
+
   size_t total_;
-  bool tty_;
-  std::chrono::steady_clock::time_point shown_{};
+  ProgressLine line_;
 };
 
 template <class Pose>
@@ -297,7 +302,7 @@ int Publish(const Arguments& args,
     return true;
   };
 
-  ProgressBar bar(messages.size());
+  SendProgress bar(messages.size());
   // --rate 0 still spaces messages by 1 / kMaxRate: bursts faster than that overflow a busy
   // receiver's socket buffer on loopback before any status could slow them down.
   constexpr double kMaxRate = 10000.0;

@@ -19,7 +19,7 @@
 //  - --transforms: per session, the latest map_T_odom (session_transform_t): where the session's
 //    odometry frame lies in its component's map frame.
 //  - --plot: the map with every verdict, the odometry beside it and the time of each step
-//    (clients/plots.h).
+//    (clients/common/plots.h).
 // --robot R keeps only robot R's part, as a robot of a fleet would: its sessions' poses and
 // transforms, and the hypotheses with an end in them.
 // --labels prints precision and recall against irrr-corrupt's labels. Exit codes follow
@@ -49,10 +49,10 @@
 #include <CLI/CLI.hpp>
 #include <lcm/lcm-cpp.hpp>
 
-#include "clients/graph_files.h"
-#include "clients/irrr_config.h"
-#include "clients/loop_csv.h"
-#include "clients/plots.h"
+#include "clients/common/graph_files.h"
+#include "clients/common/loop_csv.h"
+#include "clients/common/plots.h"
+#include "daemon/common/irrr_config.h"
 #include "daemon/raw_subscription.h"
 #include "daemon/wire.h"
 #include "irrr/correction_t.hpp"

@@ -1,4 +1,4 @@
-// irrr-plot: draws a pose graph and iRRR's decisions about it (clients/plots.h).
+// irrr-plot: draws a pose graph and iRRR's decisions about it (clients/common/plots.h).
 //
 //   irrr-plot INPUT --out MAP.svg|MAP.png [--decisions DECISIONS.csv] [--optimized OUT.g2o]
 //             [--ground-truth GT] [--steps STEPS.csv] [--title TEXT]
@@ -22,9 +22,9 @@
 #include <fmt/ranges.h>
 #include <CLI/CLI.hpp>
 
-#include "clients/graph_files.h"
-#include "clients/loop_csv.h"
-#include "clients/plots.h"
+#include "clients/common/graph_files.h"
+#include "clients/common/loop_csv.h"
+#include "clients/common/plots.h"
 
 namespace irrr {
 namespace {

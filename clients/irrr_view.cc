@@ -32,7 +32,7 @@
 #include <lcm/lcm-cpp.hpp>
 #include <nlohmann/json.hpp>
 
-#include "clients/irrr_config.h"
+#include "daemon/common/irrr_config.h"
 #include "daemon/raw_subscription.h"
 #include "daemon/wire.h"
 #include "irrr/solution_request_t.hpp"

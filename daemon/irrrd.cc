@@ -37,8 +37,8 @@
 #include <CLI/CLI.hpp>
 #include <lcm/lcm-cpp.hpp>
 
-#include "clients/allocator.h"
-#include "clients/irrr_config.h"
+#include "daemon/common/allocator.h"
+#include "daemon/common/irrr_config.h"
 #include "daemon/raw_subscription.h"
 #include "daemon/service.h"
 

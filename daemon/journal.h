@@ -15,8 +15,8 @@
 #include <string>
 #include <vector>
 
-#include "clients/irrr_config.h"
 #include "core/status.h"
+#include "daemon/common/irrr_config.h"
 
 namespace irrr {
 

@@ -24,8 +24,8 @@
 #include <string>
 #include <vector>
 
-#include "clients/irrr_config.h"
 #include "core/irrr.h"
+#include "daemon/common/irrr_config.h"
 #include "daemon/journal.h"
 #include "irrr/keyframe_t.hpp"
 #include "irrr/loop_hypothesis_t.hpp"

@@ -16,9 +16,9 @@
 #include <string>
 #include <vector>
 
-#include "clients/irrr_config.h"
 #include "core/irrr.h"
 #include "core/status.h"
+#include "daemon/common/irrr_config.h"
 
 namespace irrr {
 

@@ -17,10 +17,10 @@
 #include <fmt/core.h>
 #include <catch2/catch.hpp>
 
-#include "clients/graph_files.h"
-#include "clients/irrr_config.h"
-#include "clients/loop_csv.h"
+#include "clients/common/graph_files.h"
+#include "clients/common/loop_csv.h"
 #include "core/graph_io.h"
+#include "daemon/common/irrr_config.h"
 #include "tests/test_files.h"
 
 namespace irrr {

@@ -16,8 +16,8 @@
 
 #include <catch2/catch.hpp>
 
-#include "clients/graph_files.h"
-#include "clients/loop_csv.h"
+#include "clients/common/graph_files.h"
+#include "clients/common/loop_csv.h"
 #include "core/pose.h"
 #include "tests/processes.h"
 #include "tests/test_files.h"

@@ -1,7 +1,7 @@
-// The plots (clients/plots.h): well-formed SVG with one path per session and one line per loop of
-// each kind, for SE(2) and SE(3) graphs, and irrr-plot / irrr-batch --plot end to end.
+// The plots (clients/common/plots.h): well-formed SVG with one path per session and one line per
+// loop of each kind, for SE(2) and SE(3) graphs, and irrr-plot / irrr-batch --plot end to end.
 
-#include "clients/plots.h"
+#include "clients/common/plots.h"
 
 #include <cctype>
 #include <regex>

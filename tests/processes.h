@@ -19,8 +19,8 @@
 
 #include <catch2/catch.hpp>
 
-#include "clients/graph_files.h"
-#include "clients/loop_csv.h"
+#include "clients/common/graph_files.h"
+#include "clients/common/loop_csv.h"
 #include "tests/test_files.h"
 
 namespace irrr {
@@ -98,9 +98,15 @@ inline void RunBatch(const std::string& dir, const std::string& input, const std
   REQUIRE(code == 0);
 }
 
+// A daemon restarted from a snapshot rebuilds its good-set estimate from the snapshot's poses:
+// its chi2 values and poses agree with an uninterrupted run's to the solver's relinearization
+// bounds, not bit for bit (measured: 1e-7 relative, 3e-5 m). Without restarts they are equal.
+constexpr double kSameChi2Relative = 1e-4;
+constexpr double kSamePoseM = 1e-4;
+
 // The listener's decisions and map equal irrr-batch's: same states, clusters and steps, chi2
-// to 1e-9, every pose within 1e-6, and (unless the network lost some of the inputs the listener
-// overheard for its edges) the same edges.
+// and every pose within the tolerances above, and (unless the network lost some of the inputs the
+// listener overheard for its edges) the same edges.
 inline void CheckSameAsBatch(const std::string& dir, bool all_edges_heard = true) {
   std::vector<DecisionRow> batch;
   std::vector<DecisionRow> daemon;
@@ -127,7 +133,7 @@ inline void CheckSameAsBatch(const std::string& dir, bool all_edges_heard = true
     CHECK(got.decision.cluster == batch[k].decision.cluster);
     CHECK(got.decision.step == batch[k].decision.step);
     if (!std::isnan(batch[k].decision.chi2)) {
-      CHECK(got.decision.chi2 == Approx(batch[k].decision.chi2).epsilon(1e-9));
+      CHECK(got.decision.chi2 == Approx(batch[k].decision.chi2).epsilon(kSameChi2Relative));
     }
   }
   GraphFile<Pose2> batch_map;
@@ -150,7 +156,7 @@ inline void CheckSameAsBatch(const std::string& dir, bool all_edges_heard = true
                       (v.estimate.translation() - want.translation()).norm(),
                       YawDifference(v.estimate, want)});
   }
-  CHECK(worst < 1e-6);
+  CHECK(worst < kSamePoseM);
 }
 
 }  // namespace irrr

@@ -21,7 +21,7 @@
 #include <string>
 #include <vector>
 
-#include "clients/irrr_config.h"
+#include "daemon/common/irrr_config.h"
 
 namespace irrr::fuzz {
 

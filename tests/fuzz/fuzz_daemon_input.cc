@@ -18,9 +18,9 @@
 
 #include <spdlog/spdlog.h>
 
-#include "clients/irrr_config.h"
 #include "core/irrr.h"
 #include "core/status.h"
+#include "daemon/common/irrr_config.h"
 #include "daemon/service.h"
 #include "irrr/status_t.hpp"
 #include "tests/fuzz/daemon_records.h"

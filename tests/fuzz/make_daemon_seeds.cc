@@ -1,5 +1,5 @@
 // The seed corpus of fuzz_daemon_input, from pose-graph files: for each file, one input holding
-// the messages a front end would send for it (clients/replay_messages.h: keyframes, loop
+// the messages a front end would send for it (clients/common/replay_messages.h: keyframes, loop
 // hypotheses and session ENDs in arrival order), then a PROGRESS, a FLUSH and a solution request,
 // each applied as it arrives; one sender (MessageSequencer: seq from 0 over all channels), fixed
 // utimes. The same bytes on every run, so that a check can tell when the message types (or the
@@ -17,11 +17,11 @@
 #include <utility>
 #include <vector>
 
-#include "clients/graph_files.h"
-#include "clients/irrr_config.h"
-#include "clients/replay_messages.h"
+#include "clients/common/graph_files.h"
+#include "clients/common/replay_messages.h"
 #include "core/graph_io.h"
 #include "core/pose.h"
+#include "daemon/common/irrr_config.h"
 #include "daemon/wire.h"
 #include "irrr/solution_request_t.hpp"
 #include "tests/fuzz/daemon_records.h"

@@ -32,12 +32,13 @@
 #include <CLI/CLI.hpp>
 #include <Eigen/Geometry>
 
-#include "clients/allocator.h"
-#include "clients/graph_files.h"
+#include "clients/common/graph_files.h"
+#include "clients/common/progress_line.h"
 #include "core/irrr.h"
 #include "core/optimizer.h"
 #include "core/outliers.h"
 #include "core/trajectory_metrics.h"
+#include "daemon/common/allocator.h"
 
 namespace irrr {
 namespace {
@@ -368,7 +369,7 @@ struct RunResult {
 };
 
 // What RunIncrementalIrrr does, with every RunStep timed. Long runs report their progress on
-// stderr every kProgressSeconds.
+// stderr: a progress line on a terminal, otherwise a line every kProgressSeconds.
 template <class Pose>
 RunResult RunIncrementalTimed(const std::string& label,
                               const PoseGraph<Pose>& graph,
@@ -380,13 +381,17 @@ RunResult RunIncrementalTimed(const std::string& label,
   double next_progress_s = kProgressSeconds;
   int poses_in = 0;
   Irrr<Pose> irrr(options);
+  ProgressLine line;
+  ReplayProgress<Pose> progress(graph, "  " + label, &line);
   auto run_steps = [&]() {
     while (irrr.HasPendingStep()) {
       const auto step_start = std::chrono::steady_clock::now();
       const StepResult step = irrr.RunStep();
       result.step_ms.push_back(1e3 * SecondsSince(step_start));
       result.solves += step.solves;
-      if (const double elapsed_s = SecondsSince(start); elapsed_s >= next_progress_s) {
+      if (line.enabled()) {
+        progress.Show(irrr);
+      } else if (const double elapsed_s = SecondsSince(start); elapsed_s >= next_progress_s) {
         fmt::print(stderr,
                    "  {}: {:.0f} s, {} steps, pose {}/{}\n",
                    label,
@@ -402,10 +407,13 @@ RunResult RunIncrementalTimed(const std::string& label,
   for (const ArrivalEvent& event : ArrivalOrder(graph)) {
     poses_in += event.kind == ArrivalEvent::Kind::kPose ? 1 : 0;
     replay.Apply(event);
+    progress.Fed(event);
+    progress.Show(irrr);
     run_steps();
   }
   irrr.Flush();
   run_steps();
+  line.Clear();
   result.seconds = SecondsSince(start);
   result.steps = irrr.num_steps();
   result.decisions = replay.Decisions();

@@ -1,4 +1,4 @@
-#include "clients/irrr_config.h"
+#include "daemon/common/irrr_config.h"
 
 #include <fstream>
 #include <limits>

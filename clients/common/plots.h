@@ -1,5 +1,5 @@
-#ifndef IRRR_CLIENTS_PLOTS_H_
-#define IRRR_CLIENTS_PLOTS_H_
+#ifndef IRRR_CLIENTS_COMMON_PLOTS_H_
+#define IRRR_CLIENTS_COMMON_PLOTS_H_
 
 // Plots of a multi-session pose graph and of iRRR's decisions, as standalone SVG documents
 // (irrr-plot, and --plot of irrr-batch and irrr-listen), after the paper's figures:
@@ -121,4 +121,4 @@ extern template Status WriteGraphPlots(const std::string&,
 
 }  // namespace irrr
 
-#endif  // IRRR_CLIENTS_PLOTS_H_
+#endif  // IRRR_CLIENTS_COMMON_PLOTS_H_

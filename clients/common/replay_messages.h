@@ -1,5 +1,5 @@
-#ifndef IRRR_CLIENTS_REPLAY_MESSAGES_H_
-#define IRRR_CLIENTS_REPLAY_MESSAGES_H_
+#ifndef IRRR_CLIENTS_COMMON_REPLAY_MESSAGES_H_
+#define IRRR_CLIENTS_COMMON_REPLAY_MESSAGES_H_
 
 // A pose-graph file as the LCM messages a robot's front end would have sent (irrr-inject, tests):
 // keyframes, loop hypotheses and session ends in the arrival order of algorithm-notes ("Files as
@@ -12,9 +12,9 @@
 #include <string>
 #include <vector>
 
-#include "clients/irrr_config.h"
 #include "core/graph_io.h"
 #include "core/pose_graph.h"
+#include "daemon/common/irrr_config.h"
 #include "irrr/keyframe_t.hpp"
 #include "irrr/loop_hypothesis_t.hpp"
 #include "irrr/session_event_t.hpp"
@@ -103,4 +103,4 @@ class SenderFleet {
 
 }  // namespace irrr
 
-#endif  // IRRR_CLIENTS_REPLAY_MESSAGES_H_
+#endif  // IRRR_CLIENTS_COMMON_REPLAY_MESSAGES_H_

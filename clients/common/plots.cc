@@ -1,4 +1,4 @@
-#include "clients/plots.h"
+#include "clients/common/plots.h"
 
 #include <sys/wait.h>
 
@@ -11,7 +11,7 @@
 
 #include <fmt/core.h>
 
-#include "clients/graph_files.h"
+#include "clients/common/graph_files.h"
 #include "core/trajectory_metrics.h"
 
 namespace irrr {

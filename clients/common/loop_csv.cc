@@ -1,4 +1,4 @@
-#include "clients/loop_csv.h"
+#include "clients/common/loop_csv.h"
 
 #include <map>
 

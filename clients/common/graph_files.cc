@@ -1,4 +1,4 @@
-#include "clients/graph_files.h"
+#include "clients/common/graph_files.h"
 
 #include <cstdio>
 #include <fstream>

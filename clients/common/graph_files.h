@@ -1,5 +1,5 @@
-#ifndef IRRR_CLIENTS_GRAPH_FILES_H_
-#define IRRR_CLIENTS_GRAPH_FILES_H_
+#ifndef IRRR_CLIENTS_COMMON_GRAPH_FILES_H_
+#define IRRR_CLIENTS_COMMON_GRAPH_FILES_H_
 
 // Paths, atomic writes and ground-truth files for the command-line tools (core reads and writes
 // streams only).
@@ -44,4 +44,4 @@ Status LoadGroundTruth(const std::string& path,
 
 }  // namespace irrr
 
-#endif  // IRRR_CLIENTS_GRAPH_FILES_H_
+#endif  // IRRR_CLIENTS_COMMON_GRAPH_FILES_H_

@@ -19,7 +19,7 @@
 #include <fmt/core.h>
 #include <CLI/CLI.hpp>
 
-#include "clients/graph_files.h"
+#include "clients/common/graph_files.h"
 #include "core/optimizer.h"
 #include "core/trajectory_metrics.h"
 

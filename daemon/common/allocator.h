@@ -1,5 +1,5 @@
-#ifndef IRRR_CLIENTS_ALLOCATOR_H_
-#define IRRR_CLIENTS_ALLOCATOR_H_
+#ifndef IRRR_DAEMON_COMMON_ALLOCATOR_H_
+#define IRRR_DAEMON_COMMON_ALLOCATOR_H_
 
 // glibc's allocator, tuned for processes that solve pose graphs over and over (the daemon,
 // irrr-batch, the benchmarks). Each solve allocates and frees buffers of a few megabytes
@@ -19,4 +19,4 @@ inline void TuneAllocatorForSolves() {
 
 }  // namespace irrr
 
-#endif  // IRRR_CLIENTS_ALLOCATOR_H_
+#endif  // IRRR_DAEMON_COMMON_ALLOCATOR_H_

@@ -1,4 +1,4 @@
-#include "clients/replay_messages.h"
+#include "clients/common/replay_messages.h"
 
 #include <cmath>
 #include <map>

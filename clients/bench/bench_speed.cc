@@ -29,12 +29,13 @@
 #include <fmt/core.h>
 #include <CLI/CLI.hpp>
 
-#include "clients/allocator.h"
-#include "clients/graph_files.h"
-#include "clients/loop_csv.h"
+#include "clients/common/graph_files.h"
+#include "clients/common/loop_csv.h"
+#include "clients/common/progress_line.h"
 #include "core/irrr.h"
 #include "core/optimizer.h"
 #include "core/outliers.h"
+#include "daemon/common/allocator.h"
 
 namespace irrr {
 namespace {
@@ -120,6 +121,9 @@ RunResult RunIncremental(const PoseGraph<Pose>& graph,
   const auto start = std::chrono::steady_clock::now();
   Irrr<Pose> irrr(options);
   GraphReplay<Pose> replay(graph, &irrr);
+  // On a terminal, a progress line on stderr (nothing otherwise).
+  ProgressLine line;
+  ReplayProgress<Pose> progress(graph, "  iRRR", &line);
   bool over_budget = false;
   auto run_steps = [&]() {
     while (irrr.HasPendingStep() && !over_budget) {
@@ -130,18 +134,22 @@ RunResult RunIncremental(const PoseGraph<Pose>& graph,
       result.iterations += step.iterations;
       result.max_solves = std::max(result.max_solves, step.solves);
       over_budget = SecondsSince(start) > budget_s;
+      progress.Show(irrr);
     }
   };
   for (const ArrivalEvent& event : ArrivalOrder(graph)) {
     if (over_budget) break;
     result.poses_in += event.kind == ArrivalEvent::Kind::kPose ? 1 : 0;
     replay.Apply(event);
+    progress.Fed(event);
+    progress.Show(irrr);
     run_steps();
   }
   if (!over_budget) {
     irrr.Flush();
     run_steps();
   }
+  line.Clear();
   result.seconds = SecondsSince(start);
   result.steps = irrr.num_steps();
   result.peak_kb = StatusKb("VmHWM");

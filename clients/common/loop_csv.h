@@ -1,5 +1,5 @@
-#ifndef IRRR_CLIENTS_LOOP_CSV_H_
-#define IRRR_CLIENTS_LOOP_CSV_H_
+#ifndef IRRR_CLIENTS_COMMON_LOOP_CSV_H_
+#define IRRR_CLIENTS_COMMON_LOOP_CSV_H_
 
 // CSV tables about loop hypotheses, one row per hypothesis, for people and scoring scripts:
 //  - decisions (irrr-batch --decisions, the daemon's listener):
@@ -91,4 +91,4 @@ std::string FormatScores(const Scores& scores);
 
 }  // namespace irrr
 
-#endif  // IRRR_CLIENTS_LOOP_CSV_H_
+#endif  // IRRR_CLIENTS_COMMON_LOOP_CSV_H_

@@ -1,5 +1,5 @@
-#ifndef IRRR_CLIENTS_IRRR_CONFIG_H_
-#define IRRR_CLIENTS_IRRR_CONFIG_H_
+#ifndef IRRR_DAEMON_COMMON_IRRR_CONFIG_H_
+#define IRRR_DAEMON_COMMON_IRRR_CONFIG_H_
 
 // The JSON configuration shared by irrr-batch and the daemon (config/irrrd.json). Its "irrr"
 // object holds IrrrOptions; the other top-level objects belong to the daemon. Every key of the
@@ -133,4 +133,4 @@ nlohmann::json DaemonOptionsToJson(const DaemonOptions& options);
 
 }  // namespace irrr
 
-#endif  // IRRR_CLIENTS_IRRR_CONFIG_H_
+#endif  // IRRR_DAEMON_COMMON_IRRR_CONFIG_H_

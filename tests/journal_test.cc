@@ -1,0 +1,153 @@
+// The journal (daemon/journal.h): records come back as written, torn or corrupt tails dropped.
+
+#include <fcntl.h>
+#include <signal.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <functional>
+#include <limits>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <random>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <fmt/core.h>
+#include <spdlog/spdlog.h>
+#include <catch2/catch.hpp>
+#include <lcm/lcm-cpp.hpp>
+
+#include "clients/common/graph_files.h"
+#include "clients/common/loop_csv.h"
+#include "clients/common/replay_messages.h"
+#include "core/irrr.h"
+#include "daemon/common/irrr_config.h"
+#include "daemon/journal.h"
+#include "daemon/raw_subscription.h"
+#include "daemon/sequencer.h"
+#include "daemon/service.h"
+#include "daemon/snapshot.h"
+#include "daemon/stamp_merger.h"
+#include "daemon/wire.h"
+#include "irrr/correction_t.hpp"
+#include "irrr/error_t.hpp"
+#include "irrr/resync_request_t.hpp"
+#include "irrr/solution_request_t.hpp"
+#include "irrr/solution_t.hpp"
+#include "irrr/verdicts_t.hpp"
+#include "tests/recording_sink.h"
+#include "tests/service_helpers.h"
+#include "tests/test_files.h"
+
+namespace irrr {
+namespace {
+
+using Catch::Matchers::Contains;
+using Clock = std::chrono::steady_clock;
+
+JournalRecord Record(uint8_t fill, size_t size) {
+  JournalRecord r;
+  r.kind = static_cast<JournalRecord::Kind>(fill % 3);
+  r.received_utime = 1000 + fill;
+  r.bytes.assign(size, fill);
+  return r;
+}
+
+int64_t FileSize(const std::string& path) {
+  std::FILE* f = std::fopen(path.c_str(), "rb");
+  REQUIRE(f != nullptr);
+  std::fseek(f, 0, SEEK_END);
+  const int64_t size = std::ftell(f);
+  std::fclose(f);
+  return size;
+}
+
+TEST_CASE("Journal: records come back as written; a torn or corrupt tail is dropped",
+          "[reliability]") {
+  const std::string dir = TestDirectory("journal");
+  const std::string path = dir + "/journal";
+  std::remove(path.c_str());
+  std::vector<JournalRecord> written;
+  std::vector<int64_t> ends;  // file size after each record
+  {
+    Journal journal;
+    JournalRecovery recovery;
+    REQUIRE(journal.Open(path, JournalSyncPolicy::kNever, &recovery).ok());
+    CHECK(recovery.records.empty());
+    for (uint8_t k = 0; k < 20; ++k) {
+      written.push_back(Record(k, 10 + 7 * k));
+      REQUIRE(journal.Append({written.back()}).ok());
+      ends.push_back(journal.size_bytes());
+    }
+  }
+  CHECK(FileSize(path) == ends.back());
+  auto reopen = [&](JournalRecovery* recovery) {
+    Journal journal;
+    const Status s = journal.Open(path, JournalSyncPolicy::kBatch, recovery);
+    INFO(s.message());
+    REQUIRE(s.ok());
+  };
+  JournalRecovery recovery;
+  reopen(&recovery);
+  REQUIRE(recovery.records.size() == written.size());
+  for (size_t k = 0; k < written.size(); ++k) {
+    CHECK(recovery.records[k].kind == written[k].kind);
+    CHECK(recovery.records[k].received_utime == written[k].received_utime);
+    CHECK(recovery.records[k].bytes == written[k].bytes);
+  }
+  CHECK(recovery.dropped_bytes == 0);
+
+  // A crash in the middle of the last write: every cut inside the last record.
+  const int64_t last_start = ends[ends.size() - 2];
+  for (int64_t cut = last_start + 1; cut < ends.back(); cut += 5) {
+    REQUIRE(truncate(path.c_str(), cut) == 0);
+    reopen(&recovery);
+    INFO("cut at " << cut);
+    CHECK(recovery.records.size() == written.size() - 1);
+    CHECK(recovery.dropped_bytes == cut - last_start);
+    CHECK(FileSize(path) == last_start);  // truncated away
+    // Appending goes on from there, readable.
+    {
+      Journal journal;
+      JournalRecovery unused;
+      REQUIRE(journal.Open(path, JournalSyncPolicy::kNever, &unused).ok());
+      REQUIRE(journal.Append({written.back()}).ok());
+    }
+    reopen(&recovery);
+    CHECK(recovery.records.size() == written.size());
+    CHECK(recovery.dropped_bytes == 0);
+  }
+
+  // A flipped byte in record 12: it and everything after are dropped, with the reason.
+  {
+    const int fd = open(path.c_str(), O_RDWR);
+    REQUIRE(fd >= 0);
+    const off_t at = static_cast<off_t>(ends[11] + 20);
+    uint8_t byte = 0;
+    REQUIRE(pread(fd, &byte, 1, at) == 1);
+    byte ^= 0x40;
+    REQUIRE(pwrite(fd, &byte, 1, at) == 1);
+    close(fd);
+  }
+  reopen(&recovery);
+  CHECK(recovery.records.size() == 12);
+  CHECK(recovery.dropped_bytes == ends.back() - ends[11]);
+  CHECK_THAT(recovery.dropped_reason, Contains("CRC"));
+
+  // Not a journal: refused, untouched.
+  WriteText(dir + "/other", "hello world, not a journal");
+  Journal journal;
+  const Status s = journal.Open(dir + "/other", JournalSyncPolicy::kNever, &recovery);
+  CHECK_FALSE(s.ok());
+  CHECK_THAT(s.message(), Contains("not an irrrd journal"));
+  CHECK(ReadText(dir + "/other") == "hello world, not a journal");
+}
+
+}  // namespace
+}  // namespace irrr
