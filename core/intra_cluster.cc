@@ -160,7 +160,7 @@ bool WarmIntraCluster(LocalProblems<Pose>* problems,
   c.links = links;
   c.in_r = !links.empty();
   if (!c.in_r) return false;
-  const RedundancySample sample = ClusterRedundancy(problems, thresholds, links);
+  const RedundancySample sample = ClusterRedundancy(problems, thresholds, links, solution);
   c.redundancy_chi2 = sample.chi2;
   c.redundancy_dof = sample.dof;
   // The links that stayed out: a cluster of their own.
@@ -183,11 +183,12 @@ bool WarmIntraCluster(LocalProblems<Pose>* problems,
 template <class Pose>
 RedundancySample ClusterRedundancy(LocalProblems<Pose>* problems,
                                    const TestThresholds& thresholds,
-                                   const std::vector<int>& links) {
-  if (links.size() < 2) return {};
-  const LocalSolution solution =
+                                   const std::vector<int>& links,
+                                   const LocalSolution& solution) {
+  if (links.size() < 2 || !solution.ok()) return {};
+  const LocalSolution internal =
       problems->InternalRedundancy(links, kAlignmentCap * thresholds.Of(Pose::kDim));
-  if (!solution.ok()) return {};
+  if (!internal.ok() || !(internal.chi2 > kNoiseless * internal.dof)) return {};
   return {solution.chi2, solution.dof};
 }
 
@@ -211,9 +212,11 @@ template bool WarmIntraCluster<Pose3>(LocalProblems<Pose3>*,
                                       std::vector<int>*);
 template RedundancySample ClusterRedundancy<Pose2>(LocalProblems<Pose2>*,
                                                    const TestThresholds&,
-                                                   const std::vector<int>&);
+                                                   const std::vector<int>&,
+                                                   const LocalSolution&);
 template RedundancySample ClusterRedundancy<Pose3>(LocalProblems<Pose3>*,
                                                    const TestThresholds&,
-                                                   const std::vector<int>&);
+                                                   const std::vector<int>&,
+                                                   const LocalSolution&);
 
 }  // namespace irrr

@@ -63,12 +63,18 @@ bool WarmIntraCluster(LocalProblems<Pose>* problems,
                       std::vector<int>* changed,
                       std::vector<int>* splits);
 
-// The redundancy of a cluster's links among themselves (LocalProblems::InternalRedundancy): chi2
-// and degrees of freedom, a sample of the variance factor; none for a single link.
+// A sample of the variance factor from a cluster: chi2 and degrees of freedom at `solution`, the
+// optimum of its links with the odometry that joins them (Algorithm 1's). None for a single link,
+// or when the links agree with each other to rounding (their internal redundancy,
+// LocalProblems::InternalRedundancy, below kNoiseless per degree of freedom): a duplicated or
+// synthesized constraint carries no noise of its own, and whatever the odometry between its sides
+// must give to fit it says nothing of the noise.
+constexpr double kNoiseless = 1e-12;
 template <class Pose>
 RedundancySample ClusterRedundancy(LocalProblems<Pose>* problems,
                                    const TestThresholds& thresholds,
-                                   const std::vector<int>& links);
+                                   const std::vector<int>& links,
+                                   const LocalSolution& solution);
 
 }  // namespace irrr
 

@@ -12,16 +12,15 @@
 namespace irrr {
 namespace {
 
-// A link whose linearized statistic is this many times its threshold is rejected by the screen;
-// closer ones go to the joint test, where the nonlinear optimum decides.
-constexpr double kScreenMargin = 4.0;
+// A link whose linearized statistic is this many times its threshold (and its cluster's median
+// statistic) is rejected by the screen; closer ones go on to the nonlinear tests. True clusters
+// that close long cycles score up to 5 times their nonlinear chi2 increase (Manhattan);
+// hypotheses with random measurements, hundreds to millions of times the threshold.
+constexpr double kScreenMargin = 20.0;
 // A cluster of one link needs at least this redundancy number to be judged (Unsupported).
 constexpr double kMinRedundancy = 0.1;
 // Links screened per covariance recovery (bounds its size: 2 x 32 poses).
 constexpr size_t kScreenChunk = 32;
-// A sample whose chi2 is below this times its degrees of freedom carries no noise (a synthesized
-// or duplicated constraint) and says nothing of the variance factor.
-constexpr double kNoiseless = 1e-12;
 // The variance factor's degrees of freedom are those of its samples, at most this many: the
 // factor varies along a trajectory more than a larger count would admit.
 constexpr double kMaxVarianceDof = 50.0;
@@ -29,6 +28,9 @@ constexpr double kMaxVarianceDof = 50.0;
 // times as much (before, wrong links clustered by chance could set it). A cluster with this much
 // of its own is also judged at the larger of the global factor and its own.
 constexpr double kScaleMinimumDof = 30.0;
+// A cluster with this much redundancy of its own is judged at the larger of the global factor and
+// its own.
+constexpr double kOwnFactorMinimumDof = 18.0;
 constexpr int kCalibrationRounds = 6;
 // A good cluster accepted under a variance factor more than this many times today's is judged
 // again.
@@ -80,8 +82,7 @@ struct WarmEngine<Pose>::Impl {
     double total = 0.0;
     double largest = 0.0;
     for (const JudgedCluster& c : book->clusters) {
-      if (!c.in_reject && c.links.size() >= 2 && c.redundancy_dof > 0.0 &&
-          c.redundancy_chi2 > kNoiseless * c.redundancy_dof) {
+      if (!c.in_reject && c.links.size() >= 2 && c.redundancy_dof > 0.0) {
         samples.push_back({c.redundancy_chi2, c.redundancy_dof});
         total += c.redundancy_dof;
         largest = std::max(largest, c.redundancy_dof);
@@ -125,11 +126,13 @@ struct WarmEngine<Pose>::Impl {
     std::vector<int> links = pairwise.ConsistentSubsets(
         book->clusters[q].links, PairwiseThreshold<Pose>(TestThresholds{options->alpha, 1.0}))[0];
     for (int round = 0; round < kCalibrationRounds && links.size() >= 2; ++round) {
-      const LocalSolution solution = problems.InternalRedundancy(links, AlignmentCap());
-      if (!solution.ok() || solution.dof <= 0.0) break;
-      book->clusters[q].redundancy_chi2 = solution.chi2;
-      book->clusters[q].redundancy_dof = solution.dof;
-      const double threshold = solution.chi2 / solution.dof * ChiSquareQuantile(options->alpha, d);
+      const LocalSolution solution =
+          problems.Solve(problems.SessionsOf(links), links, AlignmentCap());
+      const RedundancySample sample = ClusterRedundancy(&problems, Thresholds(), links, solution);
+      if (!(sample.dof > 0.0)) break;
+      book->clusters[q].redundancy_chi2 = sample.chi2;
+      book->clusters[q].redundancy_dof = sample.dof;
+      const double threshold = sample.chi2 / sample.dof * ChiSquareQuantile(options->alpha, d);
       std::vector<int> kept;
       for (int e : links) {
         if (solution.summary.edge_chi2[e] <= threshold) kept.push_back(e);
@@ -138,6 +141,7 @@ struct WarmEngine<Pose>::Impl {
       links = kept;
     }
   }
+
 
   // ---- the good set --------------------------------------------------------------------------
 
@@ -294,10 +298,20 @@ struct WarmEngine<Pose>::Impl {
     }
     // The screen first: each link alone against the good set (a few sparse solves), so that
     // Algorithm 1 weighs only links that are not far off.
-    if (component_a == component_b) Screen(k, component_a, changed);
+    if (component_a == component_b) Screen(k, changed);
     std::vector<int> splits;
-    if (book->clusters[k].links.empty() ||
-        !WarmIntraCluster(&problems, &pairwise, Thresholds(), k, book, changed, &splits)) {
+    if (book->clusters[k].links.empty()) {
+      book->clusters[k].in_reject = true;
+      return;
+    }
+    // A cluster with redundancy enough of its own is judged at the larger of the global factor and
+    // its own (the noise varies along a trajectory, and a place recognizer's error with it).
+    if (book->clusters[k].links.size() >= 2) Calibrate(k);
+    test_variance = OwnVariance(k);
+    const bool survived =
+        WarmIntraCluster(&problems, &pairwise, Thresholds(), k, book, changed, &splits);
+    test_variance = 0.0;
+    if (!survived) {
       book->clusters[k].in_reject = true;
       return;
     }
@@ -319,14 +333,12 @@ struct WarmEngine<Pose>::Impl {
   }
 
   // The screen: links far off at the current optimum leave cluster q (inside one component).
-  void Screen(int q, int component, std::vector<int>* changed) {
-    const double far = kScreenMargin * LinkThreshold();
+  void Screen(int q, std::vector<int>* changed) {
     std::vector<int>& links = book->clusters[q].links;
     if (static_cast<int>(control.size()) < graph->num_edges()) {
       control.resize(graph->num_edges(), -1.0);
     }
-    std::vector<int> kept;
-    std::vector<std::pair<int, double>> far_off;
+    std::vector<double> statistic(links.size());
     for (size_t first = 0; first < links.size(); first += kScreenChunk) {
       const size_t last = std::min(links.size(), first + kScreenChunk);
       std::vector<int> vertices;
@@ -340,7 +352,6 @@ struct WarmEngine<Pose>::Impl {
       for (size_t k = first; k < last; ++k) {
         const int e = links[k];
         const Edge<Pose>& edge = graph->edge(e);
-        const std::vector<int> ends = {edge.from, edge.to};
         const int i = static_cast<int>(
             std::lower_bound(vertices.begin(), vertices.end(), edge.from) - vertices.begin());
         const int j = static_cast<int>(std::lower_bound(vertices.begin(), vertices.end(), edge.to) -
@@ -351,24 +362,29 @@ struct WarmEngine<Pose>::Impl {
         sigma.bottomLeftCorner(d, d) = covariance.block(j * d, i * d, d, d);
         sigma.bottomRightCorner(d, d) = covariance.block(j * d, j * d, d, d);
         const LinearizedAddition addition =
-            LinearizeAddition<Pose>({&edge}, *estimate, ends, sigma);
+            LinearizeAddition<Pose>({&edge}, *estimate, {edge.from, edge.to}, sigma);
         control[e] = addition.redundancy;
-        if (addition.chi2_increase <= far) {
-          kept.push_back(e);
-        } else {
-          far_off.push_back({e, addition.chi2_increase});
-        }
+        statistic[k] = addition.chi2_increase;
       }
     }
-    // If every link of a multi-link cluster is far off, the cluster goes on to the joint test
-    // whole: it is either a wrong group, which the joint test rejects as well, or true links
-    // against a wrong good cluster, whose conflict only the joint test records (Challenge).
-    if (kept.empty() && far_off.size() >= 2) return;
-    for (const auto& [e, statistic] : far_off) {
-      book->Set(e, LoopState::kRejectedJointTest, statistic, far, changed);
+    // Far off: kScreenMargin times the link threshold, and as many times the cluster's median
+    // statistic when that is larger (links that agree with each other go on together, however far
+    // the good set's estimate is from them).
+    std::vector<double> sorted = statistic;
+    std::sort(sorted.begin(), sorted.end());
+    const double median = sorted[sorted.size() / 2];
+    const double far = kScreenMargin * std::max(LinkThreshold(), median);
+    std::vector<int> kept;
+    for (size_t k = 0; k < links.size(); ++k) {
+      if (statistic[k] <= far) {
+        kept.push_back(links[k]);
+      } else {
+        book->Set(links[k], LoopState::kRejectedJointTest, statistic[k], far, changed);
+      }
     }
     links = kept;
   }
+
 
   // A cluster of one link (none of its own to support it) whose end poses the good set knows far
   // worse than the link measures them (redundancy number below kMinRedundancy, or in two
@@ -405,6 +421,14 @@ struct WarmEngine<Pose>::Impl {
     return true;
   }
 
+  // The larger of the global factor and cluster q's own, if it has redundancy enough of its own
+  // (kScaleMinimumDof); 0 (the global factor) otherwise.
+  double OwnVariance(int q) const {
+    const JudgedCluster& c = book->clusters[q];
+    if (c.redundancy_dof < kOwnFactorMinimumDof) return 0.0;
+    return std::max(variance, c.redundancy_chi2 / c.redundancy_dof);
+  }
+
   bool IncreasePasses(const typename GoodSet<Pose>::Trial& trial) const {
     return trial.ok && (trial.dof <= 0.0 || trial.increase < Threshold(trial.dof));
   }
@@ -424,10 +448,7 @@ struct WarmEngine<Pose>::Impl {
     // A cluster with redundancy enough of its own is judged at the larger of the global factor
     // and its own (the noise varies along a trajectory; Algorithm 1's graph test has already
     // bounded its own factor by the global one's threshold).
-    const JudgedCluster& c = book->clusters[q];
-    if (c.redundancy_dof >= kScaleMinimumDof) {
-      test_variance = std::max(variance, c.redundancy_chi2 / c.redundancy_dof);
-    }
+    test_variance = OwnVariance(q);
     JointTestAtScale(q, result);
     test_variance = 0.0;
   }
