@@ -35,6 +35,7 @@ Status IncrementalSolverOptions::Validate() const {
   }
   if (!(relinearize_translation > 0.0)) return Status::Error("relinearize_translation must be > 0");
   if (max_iterations < 1) return Status::Error("max_iterations must be at least 1");
+  if (trial_max_iterations < 1) return Status::Error("trial_max_iterations must be at least 1");
   if (!(spare_fraction >= 0.0)) return Status::Error("spare_fraction must be >= 0");
   if (!(refill_ratio > 1.0)) return Status::Error("refill_ratio must be > 1");
   return Status::Ok();
@@ -68,6 +69,7 @@ struct IncrementalSolver<Pose>::Impl {
     std::vector<int> added;    // edges added during the trial (and still in)
     std::vector<int> removed;  // edges removed during the trial (and still out)
     bool rebuilt = false;
+    bool analysis_valid = false;  // the symbolic analysis at the checkpoint fit its structure
   };
 
   Impl(const PoseGraph<Pose>* g, const IncrementalSolverOptions& o) : graph(g), options(o) {
@@ -85,6 +87,7 @@ struct IncrementalSolver<Pose>::Impl {
 
   ~Impl() {
     FreeFactor();
+    FreeSymbolic();
     if (solution != nullptr) cholmod_free_dense(&solution, &common);
     if (work_y != nullptr) cholmod_free_dense(&work_y, &common);
     if (work_e != nullptr) cholmod_free_dense(&work_e, &common);
@@ -93,6 +96,10 @@ struct IncrementalSolver<Pose>::Impl {
 
   void FreeFactor() {
     if (factor != nullptr) cholmod_free_factor(&factor, &common);
+  }
+
+  void FreeSymbolic() {
+    if (symbolic != nullptr) cholmod_free_factor(&symbolic, &common);
   }
 
   // ---- the problem -------------------------------------------------------------------------
@@ -226,9 +233,14 @@ struct IncrementalSolver<Pose>::Impl {
     if (grow) {
       IRRR_CHECK(!trial_active);
       const int spare = std::max(kMinSpare, static_cast<int>(options.spare_fraction * used));
-      capacity = std::max(used + spare, capacity);
+      const int grown = std::max(used + spare, capacity);
+      if (grown != capacity) ++structure_version;
+      capacity = grown;
     }
     IRRR_CHECK(capacity >= used);
+    // The problem's structure is the one last analyzed (only values changed: relinearization):
+    // its symbolic analysis serves again, and only the numeric factorization is redone.
+    const bool reuse_analysis = symbolic != nullptr && analyzed_version == structure_version;
     const int n = capacity * d;
     x_lin.resize(capacity);
     x.resize(capacity);
@@ -239,7 +251,7 @@ struct IncrementalSolver<Pose>::Impl {
 
     // The fill-reducing order of the poses, from their adjacency.
     std::vector<int> order;
-    if (used > 0) {
+    if (used > 0 && !reuse_analysis) {
       std::vector<std::vector<int>> neighbors(used);
       for (int e : edges) {
         const int a = SlotOf(graph->edge(e).from);
@@ -271,15 +283,17 @@ struct IncrementalSolver<Pose>::Impl {
       if (!ok) return false;
     }
     std::vector<int> perm;
-    perm.reserve(n);
-    for (int s : order) {
-      for (int a = 0; a < d; ++a) perm.push_back(s * d + a);
+    if (!reuse_analysis) {
+      perm.reserve(n);
+      for (int s : order) {
+        for (int a = 0; a < d; ++a) perm.push_back(s * d + a);
+      }
+      for (int s = used; s < capacity; ++s) {
+        for (int a = 0; a < d; ++a) perm.push_back(s * d + a);
+      }
+      position.assign(n, 0);
+      for (int k = 0; k < n; ++k) position[perm[k]] = k;
     }
-    for (int s = used; s < capacity; ++s) {
-      for (int a = 0; a < d; ++a) perm.push_back(s * d + a);
-    }
-    position.assign(n, 0);
-    for (int k = 0; k < n; ++k) position[perm[k]] = k;
 
     // H at x_lin (upper triangle, original order), identity on the free places.
     std::vector<Term> terms;
@@ -331,9 +345,16 @@ struct IncrementalSolver<Pose>::Impl {
     FreeFactor();
     // Supernodal where CHOLMOD judges it faster (3D graphs: six times), then converted to the
     // simplicial LDL' that updates need.
-    common.supernodal = CHOLMOD_AUTO;
-    factor = cholmod_analyze_p(A, perm.data(), nullptr, 0, &common);
-    rebuild_flops = common.fl;
+    if (reuse_analysis) {
+      factor = cholmod_copy_factor(symbolic, &common);
+    } else {
+      if (symbolic != nullptr) cholmod_free_factor(&symbolic, &common);
+      common.supernodal = CHOLMOD_AUTO;
+      factor = cholmod_analyze_p(A, perm.data(), nullptr, 0, &common);
+      rebuild_flops = common.fl;
+      if (factor != nullptr) symbolic = cholmod_copy_factor(factor, &common);
+      analyzed_version = structure_version;
+    }
     bool ok =
         factor != nullptr && cholmod_factorize(A, factor, &common) && common.status == CHOLMOD_OK;
     cholmod_free_sparse(&A, &common);
@@ -426,7 +447,8 @@ struct IncrementalSolver<Pose>::Impl {
     double previous = std::numeric_limits<double>::infinity();
     int rises = 0;
     bool batch_solved = false;
-    for (int iteration = 0; iteration < options.max_iterations; ++iteration) {
+    const int max_iterations = trial_active ? options.trial_max_iterations : options.max_iterations;
+    for (int iteration = 0; iteration < max_iterations; ++iteration) {
       if (rebuild_due && !Rebuild(false)) return Failed(summary, "factorization failed (rebuild)");
       if (!SolveSystem()) return Failed(summary, "the linear system could not be solved");
       ++summary.iterations;
@@ -454,7 +476,12 @@ struct IncrementalSolver<Pose>::Impl {
       moved_edge_list.erase(std::unique(moved_edge_list.begin(), moved_edge_list.end()),
                             moved_edge_list.end());
       const bool large = CheaperToRebuild(moved_edge_list, 2);
-      const bool unsettled = rises >= kMaxRises || iteration + 2 >= options.max_iterations;
+      // Unsettled: rising, or running out of iterations (a trial gets a batch solve half way and
+      // fails if that does not settle it).
+      const bool unsettled = rises >= kMaxRises ||
+                             iteration + 2 >= (trial_active && !batch_solved ? max_iterations / 2
+                                                                             : max_iterations);
+      if (unsettled && trial_active && batch_solved) return Failed(summary, "did not converge");
       if (unsettled && !batch_solved) {
         batch_solved = true;
         if (!BatchSolve(start)) return Failed(summary, "the batch solve failed");
@@ -507,6 +534,7 @@ struct IncrementalSolver<Pose>::Impl {
   }
 
   void SetEdges(const std::vector<int>& new_edges) {
+    ++structure_version;
     edges = new_edges;
     edge_position.assign(graph->num_edges(), -1);
     for (size_t k = 0; k < edges.size(); ++k) edge_position[edges[k]] = static_cast<int>(k);
@@ -515,6 +543,7 @@ struct IncrementalSolver<Pose>::Impl {
   }
 
   void AddIncidence(int e) {
+    ++structure_version;
     const int a = SlotOf(graph->edge(e).from);
     const int c = SlotOf(graph->edge(e).to);
     if (a >= 0) incident[a].push_back(e);
@@ -522,6 +551,7 @@ struct IncrementalSolver<Pose>::Impl {
   }
 
   void RemoveIncidence(int e) {
+    ++structure_version;
     for (int v : {graph->edge(e).from, graph->edge(e).to}) {
       const int s = SlotOf(v);
       if (s < 0) continue;
@@ -609,6 +639,11 @@ struct IncrementalSolver<Pose>::Impl {
   int capacity = 0;  // places in the factor
   cholmod_common common;
   cholmod_factor* factor = nullptr;
+  // The symbolic analysis of the structure (poses, free places and edges) of version
+  // analyzed_version; structure_version counts the structure's changes.
+  cholmod_factor* symbolic = nullptr;
+  long structure_version = 0;
+  long analyzed_version = -1;
   std::vector<int> position;  // per scalar variable: its row in the factor
   double nonzeros_after_build = 0.0;
   double rebuild_flops = 0.0;  // of the last factorization
@@ -818,6 +853,7 @@ void IncrementalSolver<Pose>::Checkpoint() {
   t.added.clear();
   t.removed.clear();
   t.rebuilt = false;
+  t.analysis_valid = m.analyzed_version == m.structure_version;
 }
 
 template <class Pose>
@@ -850,6 +886,11 @@ void IncrementalSolver<Pose>::Rollback() {
   m.SetEdges(t.edges);
   std::vector<typename Impl::Term> then;
   for (int e : then_terms) then.push_back(m.Linearize(e));
+  // A trial that only added edges analyzed (if it did) a structure that holds the checkpoint's:
+  // that analysis serves the checkpoint's factorization.
+  const bool analysis_fits =
+      t.removed.empty() && (t.analysis_valid || m.analyzed_version >= 0) && m.symbolic != nullptr;
+  if (analysis_fits) m.analyzed_version = m.structure_version;
   bool ok = !t.rebuilt && m.Modify(then, true) && m.Modify(now, false);
   if (!ok) {
     // Rebuilt during the trial (or a downdate failed): factorize the checkpoint's system anew.

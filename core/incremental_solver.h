@@ -46,6 +46,11 @@ struct IncrementalSolverOptions {
   double relinearize_translation = 1e-2;
   // Gauss-Newton iterations of one Optimize (each: a solve, and relinearization of what moved).
   int max_iterations = 30;
+  // The same during a trial, which turns to a batch solve half way and fails ("did not
+  // converge") if that does not settle it: a change that does not settle bends the problem far (a
+  // wrong loop), and its trial is rolled back anyway. True clusters settle in 2 to 4 (Manhattan),
+  // the first loop of a long exploration after a batch solve.
+  int trial_max_iterations = 12;
   // Free places for new poses, as a fraction of the poses at a rebuild (at least kMinSpare).
   double spare_fraction = 0.5;
   // A rebuild (a fresh fill-reducing order) is due when the factor has grown past this many times

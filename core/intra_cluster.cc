@@ -21,6 +21,16 @@ LocalSolution SolveCluster(LocalProblems<Pose>* problems,
       problems->SessionsOf(links), links, kAlignmentCap * thresholds.Of(Pose::kDim));
 }
 
+template <class Pose>
+bool WarmIntraClusterImpl(LocalProblems<Pose>* problems,
+                          const PairwiseConsistency<Pose>* pairwise,
+                          const PairwiseConsistency<Pose>* pairwise_for_noise,
+                          const TestThresholds& thresholds,
+                          int cluster,
+                          DecisionBook* book,
+                          std::vector<int>* changed,
+                          std::vector<int>* splits);
+
 }  // namespace
 
 template <class Pose>
@@ -66,6 +76,20 @@ bool WarmIntraCluster(LocalProblems<Pose>* problems,
                       DecisionBook* book,
                       std::vector<int>* changed,
                       std::vector<int>* splits) {
+  return WarmIntraClusterImpl(problems, pairwise, pairwise, thresholds, cluster, book, changed, splits);
+}
+
+namespace {
+
+template <class Pose>
+bool WarmIntraClusterImpl(LocalProblems<Pose>* problems,
+                          const PairwiseConsistency<Pose>* pairwise,
+                          const PairwiseConsistency<Pose>* pairwise_for_noise,
+                          const TestThresholds& thresholds,
+                          int cluster,
+                          DecisionBook* book,
+                          std::vector<int>* changed,
+                          std::vector<int>* splits) {
   const double link_threshold = thresholds.Of(Pose::kDim);
   if (pairwise != nullptr && book->clusters[cluster].links.size() >= 2) {
     // Links that do not agree with the largest consistent set leave it as clusters of their own,
@@ -82,11 +106,12 @@ bool WarmIntraCluster(LocalProblems<Pose>* problems,
       for (int e : subsets[k]) book->decisions[e].cluster = part;
       parts.push_back(part);
     }
-    const bool survived =
-        WarmIntraCluster<Pose>(problems, nullptr, thresholds, cluster, book, changed, splits);
+    const bool survived = WarmIntraClusterImpl<Pose>(
+        problems, nullptr, pairwise_for_noise, thresholds, cluster, book, changed, splits);
     for (int part : parts) {
       splits->push_back(part);
-      WarmIntraCluster<Pose>(problems, nullptr, thresholds, part, book, changed, splits);
+      WarmIntraClusterImpl<Pose>(
+          problems, nullptr, pairwise_for_noise, thresholds, part, book, changed, splits);
     }
     return survived;
   }
@@ -160,7 +185,7 @@ bool WarmIntraCluster(LocalProblems<Pose>* problems,
   c.links = links;
   c.in_r = !links.empty();
   if (!c.in_r) return false;
-  const RedundancySample sample = ClusterRedundancy(problems, thresholds, links, solution);
+  const RedundancySample sample = ClusterRedundancy(problems, pairwise_for_noise, links, solution);
   c.redundancy_chi2 = sample.chi2;
   c.redundancy_dof = sample.dof;
   // The links that stayed out: a cluster of their own.
@@ -175,20 +200,27 @@ bool WarmIntraCluster(LocalProblems<Pose>* problems,
     book->clusters[split].closed = true;
     for (int e : left) book->decisions[e].cluster = split;
     splits->push_back(split);
-    WarmIntraCluster<Pose>(problems, nullptr, thresholds, split, book, changed, splits);
+    WarmIntraClusterImpl<Pose>(
+        problems, nullptr, pairwise_for_noise, thresholds, split, book, changed, splits);
   }
   return true;
 }
 
+}  // namespace
+
 template <class Pose>
 RedundancySample ClusterRedundancy(LocalProblems<Pose>* problems,
-                                   const TestThresholds& thresholds,
+                                   const PairwiseConsistency<Pose>* pairwise,
                                    const std::vector<int>& links,
                                    const LocalSolution& solution) {
   if (links.size() < 2 || !solution.ok()) return {};
-  const LocalSolution internal =
-      problems->InternalRedundancy(links, kAlignmentCap * thresholds.Of(Pose::kDim));
-  if (!internal.ok() || !(internal.chi2 > kNoiseless * internal.dof)) return {};
+  if (pairwise != nullptr) {
+    if (pairwise->Noiseless(links, kNoiseless * Pose::kDim)) return {};
+  } else {
+    const LocalSolution internal =
+        problems->InternalRedundancy(links, std::numeric_limits<double>::max());
+    if (!internal.ok() || !(internal.chi2 > kNoiseless * internal.dof)) return {};
+  }
   return {solution.chi2, solution.dof};
 }
 
@@ -211,11 +243,11 @@ template bool WarmIntraCluster<Pose3>(LocalProblems<Pose3>*,
                                       std::vector<int>*,
                                       std::vector<int>*);
 template RedundancySample ClusterRedundancy<Pose2>(LocalProblems<Pose2>*,
-                                                   const TestThresholds&,
+                                                   const PairwiseConsistency<Pose2>*,
                                                    const std::vector<int>&,
                                                    const LocalSolution&);
 template RedundancySample ClusterRedundancy<Pose3>(LocalProblems<Pose3>*,
-                                                   const TestThresholds&,
+                                                   const PairwiseConsistency<Pose3>*,
                                                    const std::vector<int>&,
                                                    const LocalSolution&);
 

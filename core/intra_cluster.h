@@ -70,9 +70,11 @@ bool WarmIntraCluster(LocalProblems<Pose>* problems,
 // synthesized constraint carries no noise of its own, and whatever the odometry between its sides
 // must give to fit it says nothing of the noise.
 constexpr double kNoiseless = 1e-12;
+// With `pairwise` the noiselessness is judged from the pairwise statistics, otherwise from the
+// internal redundancy's own solve.
 template <class Pose>
 RedundancySample ClusterRedundancy(LocalProblems<Pose>* problems,
-                                   const TestThresholds& thresholds,
+                                   const PairwiseConsistency<Pose>* pairwise,
                                    const std::vector<int>& links,
                                    const LocalSolution& solution);
 

@@ -70,6 +70,16 @@ class LocalProblems {
   const PoseGraph<Pose>* graph_;
   const std::vector<Pose>* dead_reckoning_;
   Optimizer<Pose> optimizer_;
+  // The last problem solved and its solution (a problem is often asked twice in a row).
+  struct Last {
+    bool valid = false;
+    bool split = false;
+    double cap = 0.0;
+    std::vector<char> sessions;
+    std::vector<int> loops;  // sorted
+    int num_vertices = 0;
+    LocalSolution solution;
+  } last_;
   int solves_ = 0;
   int iterations_ = 0;
 };

@@ -5,6 +5,8 @@
 
 #include <Eigen/Cholesky>
 
+#include "core/test_statistics.h"
+
 namespace irrr {
 namespace {
 
@@ -113,6 +115,33 @@ double PairwiseConsistency<Pose>::Statistic(int l, int m) const {
   const Eigen::LDLT<Matrix> ldlt(0.5 * (covariance + covariance.transpose()));
   if (ldlt.info() != Eigen::Success) return std::numeric_limits<double>::infinity();
   return r.dot(ldlt.solve(r));
+}
+
+template <class Pose>
+bool PairwiseConsistency<Pose>::Noiseless(const std::vector<int>& links, double tiny) const {
+  for (size_t k = 1; k < links.size(); ++k) {
+    if (!(Statistic(links.front(), links[k]) < tiny)) return false;
+  }
+  return true;
+}
+
+template <class Pose>
+double PairwiseConsistency<Pose>::PairwiseFactor(const std::vector<int>& links) const {
+  constexpr size_t kFactorPairs = 2000;
+  const size_t n = links.size();
+  const size_t pairs = n * (n - 1) / 2;
+  if (n < 2) return 0.0;
+  const size_t stride = std::max<size_t>(1, pairs / kFactorPairs);
+  std::vector<double> statistics;
+  size_t index = 0;
+  for (size_t i = 0; i < n; ++i) {
+    for (size_t j = i + 1; j < n; ++j, ++index) {
+      if (index % stride == 0) statistics.push_back(Statistic(links[i], links[j]));
+    }
+  }
+  auto middle = statistics.begin() + statistics.size() / 2;
+  std::nth_element(statistics.begin(), middle, statistics.end());
+  return *middle / ChiSquareMedian(Pose::kDim);
 }
 
 template <class Pose>

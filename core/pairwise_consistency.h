@@ -42,6 +42,15 @@ class PairwiseConsistency {
   // sessions, the same orientation of sides). Symmetric in l and m; 0 for l == m.
   double Statistic(int l, int m) const;
 
+  // Whether the links agree with each other to rounding (every statistic against the first below
+  // `tiny`): a duplicated or synthesized group, which carries no noise of its own.
+  bool Noiseless(const std::vector<int>& links, double tiny) const;
+
+  // The variance factor the links' pairwise statistics imply on their own: the median statistic
+  // over their pairs (at most kFactorPairs of them, spread evenly) over the chi-square median. A
+  // minority of wrong links moves a median little; 0 for fewer than two links.
+  double PairwiseFactor(const std::vector<int>& links) const;
+
   // The links' largest set of pairwise consistent ones (statistic below `threshold`), found
   // greedily (each link tried as a seed; members added by their number of consistent partners),
   // then the largest among the rest, and so on: every link in exactly one subset, subsets largest

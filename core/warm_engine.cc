@@ -12,11 +12,16 @@
 namespace irrr {
 namespace {
 
-// A link whose linearized statistic is this many times its threshold (and its cluster's median
-// statistic) is rejected by the screen; closer ones go on to the nonlinear tests. True clusters
-// that close long cycles score up to 5 times their nonlinear chi2 increase (Manhattan);
-// hypotheses with random measurements, hundreds to millions of times the threshold.
-constexpr double kScreenMargin = 20.0;
+// A link whose linearized statistic is this many times its threshold, and kClusterMargin times its
+// cluster's median statistic, is rejected by the screen; closer ones go on to the nonlinear tests.
+// Hypotheses with random measurements score hundreds to millions of times the threshold. True
+// clusters that close long cycles can score several times their nonlinear chi2 increase (up to 5
+// on Manhattan), and a place recognizer's clusters can stand off the good set together (KITTI 05:
+// 17 links at 4.3 times): a cluster whose links agree goes on whole.
+constexpr double kScreenMargin = 4.0;
+constexpr double kClusterMargin = 20.0;
+// The smallest pairwise factor Calibrate uses (a noiseless cluster's pairs score 0).
+constexpr double kNoiselessFactor = 1e-6;
 // A cluster of one link needs at least this redundancy number to be judged (Unsupported).
 constexpr double kMinRedundancy = 0.1;
 // Links screened per covariance recovery (bounds its size: 2 x 32 poses).
@@ -121,14 +126,21 @@ struct WarmEngine<Pose>::Impl {
   // again, until none fails (a trimmed estimate: one wrong link among many true ones dominates the
   // cluster's chi2 and stands out against it). The cluster itself is unchanged.
   void Calibrate(int q) {
-    // The largest set of pairwise consistent links at the nominal scale (the factor is at most 1):
-    // wrong groups clustered with true loops, or with each other, are not noise.
+    // The largest set of pairwise consistent links at the scale their pairs imply (at most 1, the
+    // information as given): wrong links clustered with true loops, or with each other, are not
+    // noise. On conservative information (Manhattan's odometry) random links a few poses long
+    // agree with the rest at the nominal scale.
+    const double pair_factor =
+        std::clamp(pairwise.PairwiseFactor(book->clusters[q].links), kNoiselessFactor, 1.0);
     std::vector<int> links = pairwise.ConsistentSubsets(
-        book->clusters[q].links, PairwiseThreshold<Pose>(TestThresholds{options->alpha, 1.0}))[0];
-    for (int round = 0; round < kCalibrationRounds && links.size() >= 2; ++round) {
+        book->clusters[q].links,
+        PairwiseThreshold<Pose>(TestThresholds{options->alpha, pair_factor}))[0];
+    // With a factor known, the consistent set is the sample (Algorithm 1 judges its links).
+    const int rounds = scale_known ? 1 : kCalibrationRounds;
+    for (int round = 0; round < rounds && links.size() >= 2; ++round) {
       const LocalSolution solution =
           problems.Solve(problems.SessionsOf(links), links, AlignmentCap());
-      const RedundancySample sample = ClusterRedundancy(&problems, Thresholds(), links, solution);
+      const RedundancySample sample = ClusterRedundancy(&problems, &pairwise, links, solution);
       if (!(sample.dof > 0.0)) break;
       book->clusters[q].redundancy_chi2 = sample.chi2;
       book->clusters[q].redundancy_dof = sample.dof;
@@ -248,9 +260,8 @@ struct WarmEngine<Pose>::Impl {
   }
 
   // Reversing: good clusters accepted under a variance factor more than kRevalidateRatio times
-  // the current one (early, on little evidence of the noise) leave the good set together, get
-  // back every link they held when they closed, and are judged again at the current factor; their
-  // links that do not come back are reversed.
+  // the current one (early, on little evidence of the noise) leave the good set together and are
+  // judged again at the current factor (Rejudge).
   void Revalidate(StepResult* result) {
     std::vector<int> suspects;
     for (int g = 0; g < static_cast<int>(book->clusters.size()); ++g) {
@@ -258,25 +269,38 @@ struct WarmEngine<Pose>::Impl {
       if (c.in_good && c.accepted_variance > kRevalidateRatio * variance) suspects.push_back(g);
     }
     if (suspects.empty()) return;
+    for (int g : suspects) book->clusters[g].in_good = false;
+    good.Rebuild(GoodLoops(), AlignmentCap());
+    Rejudge(suspects, result);
+    result->reversals += static_cast<int>(suspects.size());
+  }
+
+  // Recovering: clusters that have left the good set get back every link they held when they
+  // closed and are judged again against the good set as it is now (a wrong link accepted with
+  // true ones early is screened out, the true ones come back); their links that were accepted and
+  // do not come back are reversed.
+  void Rejudge(std::vector<int> clusters, StepResult* result) {
     std::vector<int> accepted_before;
-    for (int g : suspects) {
+    for (int g : clusters) {
       JudgedCluster& c = book->clusters[g];
       c.in_good = false;
       c.in_r = false;
+      c.in_reject = false;
       c.links.clear();
     }
     for (int e = 0; e < graph->num_edges(); ++e) {
       const LoopDecision& decision = book->decisions[e];
       if (decision.cluster < 0 ||
-          std::find(suspects.begin(), suspects.end(), decision.cluster) == suspects.end()) {
+          std::find(clusters.begin(), clusters.end(), decision.cluster) == clusters.end()) {
         continue;
       }
       book->clusters[decision.cluster].links.push_back(e);
       if (decision.state == LoopState::kAccepted) accepted_before.push_back(e);
     }
-    good.Rebuild(GoodLoops(), AlignmentCap());
-    SortLargestFirst(&suspects);
-    for (int g : suspects) Judge(g, result);
+    SortLargestFirst(&clusters);
+    ++rejudging;
+    for (int g : clusters) Judge(g, result);
+    --rejudging;
     for (int e : accepted_before) {
       const LoopDecision& decision = book->decisions[e];
       if (decision.state != LoopState::kAccepted) {
@@ -284,7 +308,6 @@ struct WarmEngine<Pose>::Impl {
             e, LoopState::kReversed, decision.chi2, decision.threshold, &result->changed_loops);
       }
     }
-    result->reversals += static_cast<int>(suspects.size());
   }
 
   // The whole pipeline for one cluster: screen, Algorithm 1, joint test (with its splits).
@@ -367,13 +390,13 @@ struct WarmEngine<Pose>::Impl {
         statistic[k] = addition.chi2_increase;
       }
     }
-    // Far off: kScreenMargin times the link threshold, and as many times the cluster's median
-    // statistic when that is larger (links that agree with each other go on together, however far
-    // the good set's estimate is from them).
+    // Far off: kScreenMargin times the link threshold, and kClusterMargin times the cluster's
+    // median statistic (links that agree with each other go on together, however far the good
+    // set's estimate is from them).
     std::vector<double> sorted = statistic;
     std::sort(sorted.begin(), sorted.end());
-    const double median = sorted[sorted.size() / 2];
-    const double far = kScreenMargin * std::max(LinkThreshold(), median);
+    const double median = links.size() >= 2 ? sorted[sorted.size() / 2] : 0.0;
+    const double far = std::max(kScreenMargin * LinkThreshold(), kClusterMargin * median);
     std::vector<int> kept;
     for (size_t k = 0; k < links.size(); ++k) {
       if (statistic[k] <= far) {
@@ -527,6 +550,7 @@ struct WarmEngine<Pose>::Impl {
   void Challenge(const std::vector<int>& suspects,
                  const std::vector<int>& components,
                  StepResult* result) {
+    if (rejudging > 0) return;  // one challenge at a time: what it re-judges does not challenge
     std::vector<int> challengers;
     size_t challenger_links = 0;
     size_t smallest_suspect = std::numeric_limits<size_t>::max();
@@ -534,7 +558,9 @@ struct WarmEngine<Pose>::Impl {
       smallest_suspect = std::min(smallest_suspect, book->clusters[g].links.size());
       for (int r : book->clusters[g].opponents) {
         const JudgedCluster& c = book->clusters[r];
-        if (!c.in_reject || c.in_good || c.links.empty() || !Within(components, r) ||
+        // A lone link cannot outvote anything: wrong ones fail against a good cluster one after
+        // the other, each bending it, and none agrees with another.
+        if (!c.in_reject || c.in_good || c.links.size() < 2 || !Within(components, r) ||
             std::find(challengers.begin(), challengers.end(), r) != challengers.end()) {
           continue;
         }
@@ -591,19 +617,15 @@ struct WarmEngine<Pose>::Impl {
       good.Rebuild(loops_of(before), AlignmentCap());
       return;
     }
-    std::vector<int>* changed = &result->changed_loops;
-    for (int g : suspects) {
-      if (std::find(taken.begin(), taken.end(), g) != taken.end()) continue;
-      double chi2;
-      ConsistencyIndex(g, &chi2);
-      const double threshold = Threshold(d * static_cast<double>(book->clusters[g].links.size()));
-      for (int e : book->clusters[g].links) {
-        book->Set(e, LoopState::kReversed, chi2, threshold, changed);
-      }
-      book->clusters[g].in_good = false;
-      book->clusters[g].in_reject = true;
+    for (int q : taken) {
+      if (!book->clusters[q].in_good) Accept(q, &result->changed_loops);
     }
-    for (int q : taken) Accept(q, changed);
+    std::vector<int> reversed;
+    for (int g : suspects) {
+      if (std::find(taken.begin(), taken.end(), g) == taken.end()) reversed.push_back(g);
+    }
+    for (int g : reversed) book->clusters[g].in_good = false;
+    Rejudge(reversed, result);
     ++result->reversals;
   }
 
@@ -621,6 +643,7 @@ struct WarmEngine<Pose>::Impl {
   double variance_dof = std::numeric_limits<double>::infinity();
   bool scale_known = false;
   bool released = false;
+  int rejudging = 0;  // Rejudge under way (no challenge starts inside one)
   std::vector<double> control;  // per loop edge: its redundancy number at its last screen
 };
 
