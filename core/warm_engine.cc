@@ -30,16 +30,17 @@ constexpr size_t kScreenChunk = 32;
 // factor varies along a trajectory more than a larger count would admit.
 constexpr double kMaxVarianceDof = 50.0;
 // A variance factor is known once one cluster has this much redundancy, or all together three
-// times as much (before, wrong links clustered by chance could set it). A cluster with this much
-// of its own is also judged at the larger of the global factor and its own.
+// times as much (before, wrong links clustered by chance could set it).
 constexpr double kScaleMinimumDof = 30.0;
 // A cluster with this much redundancy of its own is judged at the larger of the global factor and
 // its own.
 constexpr double kOwnFactorMinimumDof = 18.0;
+// Trimming rounds of a cluster's variance sample before any factor is known (Calibrate).
 constexpr int kCalibrationRounds = 6;
 // A good cluster accepted under a variance factor more than this many times today's is judged
 // again.
 constexpr double kRevalidateRatio = 2.0;
+// Clusters that challenge good ones at once (Challenge), largest first.
 constexpr size_t kMaxChallengers = 8;
 
 }  // namespace
