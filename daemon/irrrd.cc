@@ -142,8 +142,8 @@ int Run(const Arguments& args, const CLI::App& app) {
   lcm::LCM lcm(daemon.lcm_url);
   if (!lcm.good()) {
     spdlog::critical(
-        "cannot open LCM at \"{}\" (for udpm://, is there a multicast route? see the "
-        "README)",
+        "cannot open LCM at \"{}\" (for udpm://, is there a multicast route? see "
+        "docs/daemon.md)",
         daemon.lcm_url.empty() ? "default URL" : daemon.lcm_url);
     return EX_UNAVAILABLE;
   }

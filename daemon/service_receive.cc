@@ -177,7 +177,7 @@ bool Service::Receive(const std::string& channel, const uint8_t* data, int size)
     st.WarnOnce("rival",
                 rival,
                 "daemon \"" + rival + "\" also publishes on " + ch.correction +
-                    ": give each daemon its own output channels (README, \"Fleets\")");
+                    ": give each daemon its own output channels (docs/fleets.md)");
     std::lock_guard<std::mutex> lock(st.stats_mutex);
     if (st.rivals.size() < 16) st.rivals.insert(rival);
     return false;

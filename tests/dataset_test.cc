@@ -119,7 +119,7 @@ TEST_CASE("Manhattan is optimized from its raw guess to the known optimum", "[da
   while (in >> x >> y >> yaw) ground_truth.push_back(Pose2(x, y, yaw));
   REQUIRE(ground_truth.size() == estimate.size());
   const double ate = AbsoluteTrajectoryError(estimate, ground_truth).rmse_m;
-  // The optimum's ATE (0.79 m, see README); a wrong minimum is metres away.
+  // The optimum's ATE (0.79 m, see docs/measurements.md); a wrong minimum is metres away.
   CHECK(ate == Approx(0.79).margin(0.02));
 }
 
@@ -142,7 +142,7 @@ void CheckBothAlgorithmsAgree(const std::string& relative, double known_chi2) {
   REQUIRE(gn.termination == TerminationType::kConvergence);
   REQUIRE(lm.termination == TerminationType::kConvergence);
   CHECK(lm.final_chi2 == Approx(gn.final_chi2).epsilon(1e-6));
-  // The value this optimizer reports (README, "Measured figures"); 0.1% is convergence noise.
+  // The value this optimizer reports (docs/measurements.md); 0.1% is convergence noise.
   CHECK(gn.final_chi2 == Approx(known_chi2).epsilon(1e-3));
 }
 

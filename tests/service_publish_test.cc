@@ -160,7 +160,7 @@ TEST_CASE(
   }
   // Neither order trusts a wrong loop. Decisions on a few true loops depend on the order
   // (clusters close at other times): the rule for daemons that hear different orders
-  // (README, "Fleets"); the maps agree to a few centimetres.
+  // (docs/fleets.md); the maps agree to a few centimetres.
   std::ifstream labels_in(c.labels);
   std::vector<LabelRow> labels;
   REQUIRE(ReadLabelsCsv(labels_in, &labels).ok());

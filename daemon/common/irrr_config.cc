@@ -14,7 +14,7 @@ namespace {
 using nlohmann::json;
 
 // The JSON names of the options, in one place: a new field of IrrrOptions or OptimizerOptions is
-// one line here (and one in README's "Configuration"). Reading, writing and the list of known
+// one line here (and one in docs/daemon.md's key tables). Reading, writing and the list of known
 // keys all go through these two functions.
 template <class Visitor>
 void VisitFields(OptimizerOptions& options, Visitor& visit) {
