@@ -155,7 +155,6 @@ struct WarmEngine<Pose>::Impl {
     }
   }
 
-
   // ---- the good set --------------------------------------------------------------------------
 
   std::vector<int> GoodLoops() const {
@@ -409,7 +408,6 @@ struct WarmEngine<Pose>::Impl {
     links = kept;
   }
 
-
   // A cluster of one link (none of its own to support it) whose end poses the good set knows far
   // worse than the link measures them (redundancy number below kMinRedundancy, or in two
   // components): the link would bend the estimate to fit whatever it says, so no test can tell
@@ -644,7 +642,7 @@ struct WarmEngine<Pose>::Impl {
   double variance_dof = std::numeric_limits<double>::infinity();
   bool scale_known = false;
   bool released = false;
-  int rejudging = 0;  // Rejudge under way (no challenge starts inside one)
+  int rejudging = 0;            // Rejudge under way (no challenge starts inside one)
   std::vector<double> control;  // per loop edge: its redundancy number at its last screen
 };
 

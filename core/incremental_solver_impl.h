@@ -1,0 +1,666 @@
+#ifndef IRRR_CORE_INCREMENTAL_SOLVER_IMPL_H_
+#define IRRR_CORE_INCREMENTAL_SOLVER_IMPL_H_
+
+// IncrementalSolver's state and its linear algebra (CHOLMOD factor, updates, rebuilds, solves,
+// relinearization, Optimize). Private to core/incremental_solver*.cc: include nowhere else.
+
+#include <cholmod.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <string>
+#include <vector>
+
+#include <Eigen/Cholesky>
+
+#include "core/incremental_solver.h"
+#include "core/optimizer.h"
+
+namespace irrr {
+namespace incremental_internal {
+
+// Free places kept for new poses at least, whatever the problem's size.
+constexpr int kMinSpare = 64;
+// The factor's size is checked against refill_ratio after this many modifications.
+constexpr int kFillCheckInterval = 32;
+// A rank-1 update's cost per factor entry on its path, in flops of a factorization (measured on
+// Manhattan and City10000: about 0.6 ns against 1.5 ns per flop of a simplicial factorization,
+// and a rebuild also orders and linearizes).
+constexpr double kUpdateCostRatio = 0.5;
+// Optimize turns to a batch solve after this many iterations in a row whose model chi2 rose by
+// more than kRiseTolerance (relative): Gauss-Newton's full steps going astray.
+constexpr int kMaxRises = 3;
+constexpr double kRiseTolerance = 1e-6;
+
+}  // namespace incremental_internal
+
+template <class Pose>
+struct IncrementalSolver<Pose>::Impl {
+  // The tuning constants above, by their short names.
+  static constexpr int kMinSpare = incremental_internal::kMinSpare;
+  static constexpr int kFillCheckInterval = incremental_internal::kFillCheckInterval;
+  static constexpr double kUpdateCostRatio = incremental_internal::kUpdateCostRatio;
+  static constexpr int kMaxRises = incremental_internal::kMaxRises;
+  static constexpr double kRiseTolerance = incremental_internal::kRiseTolerance;
+
+  static constexpr int d = Pose::kDim;
+  using Tangent = typename Pose::Tangent;
+  using RowMajorMatrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+
+  // One edge linearized at the linearization points of its poses, whitened by Omega = U'U:
+  // J_w = U J, r_w = U r, so that J'Omega J = J_w'J_w and J'Omega r = J_w'r_w.
+  struct Term {
+    int slot_from = -1;  // -1: the anchor (no variables)
+    int slot_to = -1;
+    Matrix J_from;
+    Matrix J_to;
+    Tangent r;
+  };
+
+  // What a trial must give back.
+  struct Trial {
+    std::vector<Pose> x_lin;
+    std::vector<Pose> x;
+    Eigen::VectorXd delta;
+    Eigen::VectorXd b;
+    double chi2_lin = 0.0;
+    std::vector<int> edges;    // the problem's edges at the checkpoint
+    std::vector<char> moved;   // per slot: relinearized during the trial
+    std::vector<int> added;    // edges added during the trial (and still in)
+    std::vector<int> removed;  // edges removed during the trial (and still out)
+    bool rebuilt = false;
+    bool analysis_valid = false;  // the symbolic analysis at the checkpoint fit its structure
+  };
+
+  Impl(const PoseGraph<Pose>* g, const IncrementalSolverOptions& o) : graph(g), options(o) {
+    cholmod_start(&common);
+    common.print = 0;
+    common.error_handler = nullptr;
+    // LDL' (the form CHOLMOD modifies), simplicial, in the order given (ours: the future poses'
+    // places last), not postordered (that would move them).
+    common.supernodal = CHOLMOD_SIMPLICIAL;
+    common.final_ll = 0;
+    common.nmethods = 1;
+    common.method[0].ordering = CHOLMOD_GIVEN;
+    common.postorder = 0;
+  }
+
+  ~Impl() {
+    FreeFactor();
+    FreeSymbolic();
+    if (solution != nullptr) cholmod_free_dense(&solution, &common);
+    if (work_y != nullptr) cholmod_free_dense(&work_y, &common);
+    if (work_e != nullptr) cholmod_free_dense(&work_e, &common);
+    cholmod_finish(&common);
+  }
+
+  void FreeFactor() {
+    if (factor != nullptr) cholmod_free_factor(&factor, &common);
+  }
+
+  void FreeSymbolic() {
+    if (symbolic != nullptr) cholmod_free_factor(&symbolic, &common);
+  }
+
+  // ---- the problem -------------------------------------------------------------------------
+
+  const Pose& LinearizationPoint(int v) const {
+    return v == anchor ? anchor_pose : x_lin[slot_of[v]];
+  }
+  const Pose& Estimate(int v) const { return v == anchor ? anchor_pose : x[slot_of[v]]; }
+  int SlotOf(int v) const { return v < static_cast<int>(slot_of.size()) ? slot_of[v] : -1; }
+
+  Term Linearize(int e) const {
+    const Edge<Pose>& edge = graph->edge(e);
+    Term t;
+    t.slot_from = edge.from == anchor ? -1 : slot_of[edge.from];
+    t.slot_to = edge.to == anchor ? -1 : slot_of[edge.to];
+    const Tangent r = RelativePoseResidual<Pose>(edge.measurement,
+                                                 LinearizationPoint(edge.from),
+                                                 LinearizationPoint(edge.to),
+                                                 &t.J_from,
+                                                 &t.J_to);
+    const Eigen::LLT<Matrix> llt(edge.information);
+    const Matrix U = llt.matrixU();
+    t.J_from = U * t.J_from;
+    t.J_to = U * t.J_to;
+    t.r = U * r;
+    return t;
+  }
+
+  // b -= sign * J'Omega r, chi2_lin += sign * r'Omega r.
+  void AccumulateRightHandSide(const Term& t, double sign) {
+    if (t.slot_from >= 0) b.segment<d>(t.slot_from * d) -= sign * t.J_from.transpose() * t.r;
+    if (t.slot_to >= 0) b.segment<d>(t.slot_to * d) -= sign * t.J_to.transpose() * t.r;
+    chi2_lin += sign * t.r.squaredNorm();
+  }
+
+  // ---- the factor --------------------------------------------------------------------------
+
+  // Updates (sign > 0) or downdates the factor by the terms' J'Omega J: C = [J_w' ...] with rows
+  // in the factor's order (CHOLMOD's updown does not permute).
+  bool Modify(const std::vector<Term>& terms, bool update) {
+    if (terms.empty()) return true;
+    const int n = capacity * d;
+    const int ncol = static_cast<int>(terms.size()) * d;
+    cholmod_sparse* C =
+        cholmod_allocate_sparse(n, ncol, ncol * 2 * d, 1, 1, 0, CHOLMOD_REAL, &common);
+    if (C == nullptr) return false;
+    int* Cp = static_cast<int*>(C->p);
+    int* Ci = static_cast<int*>(C->i);
+    double* Cx = static_cast<double*>(C->x);
+    int nz = 0;
+    std::vector<std::pair<int, double>> column;
+    for (size_t t = 0; t < terms.size(); ++t) {
+      const Term& term = terms[t];
+      for (int k = 0; k < d; ++k) {
+        Cp[t * d + k] = nz;
+        column.clear();
+        for (int a = 0; a < d; ++a) {
+          if (term.slot_from >= 0) {
+            column.push_back({position[term.slot_from * d + a], term.J_from(k, a)});
+          }
+          if (term.slot_to >= 0)
+            column.push_back({position[term.slot_to * d + a], term.J_to(k, a)});
+        }
+        std::sort(column.begin(), column.end());
+        for (const auto& [row, value] : column) {
+          Ci[nz] = row;
+          Cx[nz] = value;
+          ++nz;
+        }
+      }
+    }
+    Cp[ncol] = nz;
+    const int ok = cholmod_updown(update ? 1 : 0, C, factor, &common);
+    cholmod_free_sparse(&C, &common);
+    counters.updates += static_cast<long>(terms.size());
+    NoteModification(static_cast<int>(terms.size()));
+    return ok && common.status == CHOLMOD_OK;
+  }
+
+  void NoteModification(int count) {
+    modifications_since_check += count;
+    if (modifications_since_check < kFillCheckInterval) return;
+    modifications_since_check = 0;
+    if (FactorNonzeros() > options.refill_ratio * nonzeros_after_build) rebuild_due = true;
+  }
+
+  // The work of a rank-d modification of the factor by the terms of `edges`: the entries of the
+  // factor on the elimination-tree paths from their poses' columns to the root (each is touched
+  // d times), against a rebuild's (the last factorization's flop count): Add and Optimize take
+  // the cheaper.
+  bool CheaperToRebuild(const std::vector<int>& modified_edges, int times) const {
+    const int* Lp = static_cast<const int*>(factor->p);
+    const int* Li = static_cast<const int*>(factor->i);
+    const int* Lnz = static_cast<const int*>(factor->nz);
+    const double budget = rebuild_flops / (kUpdateCostRatio * d * times);
+    double work = 0.0;
+    mark.resize(factor->n, 0);
+    std::vector<int> visited;
+    for (int e : modified_edges) {
+      for (int v : {graph->edge(e).from, graph->edge(e).to}) {
+        const int s = SlotOf(v);
+        if (s < 0) continue;
+        for (int j = position[s * d]; j >= 0 && !mark[j]; j = Lnz[j] > 1 ? Li[Lp[j] + 1] : -1) {
+          mark[j] = 1;
+          visited.push_back(j);
+          work += Lnz[j];
+        }
+      }
+      for (int j : visited) mark[j] = 0;
+      visited.clear();
+      if (work > budget) return true;
+    }
+    return false;
+  }
+
+  double FactorNonzeros() const {
+    const int* nz = static_cast<const int*>(factor->nz);
+    double total = 0.0;
+    for (size_t j = 0; j < factor->n; ++j) total += nz[j];
+    return total;
+  }
+
+  // Linearizes every edge at x (which becomes x_lin), orders the poses afresh (AMD on the pose
+  // graph, the free places last) and factorizes. delta is zero afterwards. With `grow`, the free
+  // places are replenished (never during a trial, whose saved vectors keep their size).
+  bool Rebuild(bool grow) {
+    ++counters.rebuilds;
+    ++rebuilds_this_call;
+    if (trial_active) trial.rebuilt = true;
+    const int used = static_cast<int>(vertex_of_slot.size());
+    if (grow) {
+      IRRR_CHECK(!trial_active);
+      const int spare = std::max(kMinSpare, static_cast<int>(options.spare_fraction * used));
+      const int grown = std::max(used + spare, capacity);
+      if (grown != capacity) ++structure_version;
+      capacity = grown;
+    }
+    IRRR_CHECK(capacity >= used);
+    // The problem's structure is the one last analyzed (only values changed: relinearization):
+    // its symbolic analysis serves again, and only the numeric factorization is redone.
+    const bool reuse_analysis = symbolic != nullptr && analyzed_version == structure_version;
+    const int n = capacity * d;
+    x_lin.resize(capacity);
+    x.resize(capacity);
+    for (int s = 0; s < used; ++s) x_lin[s] = x[s];
+    delta = Eigen::VectorXd::Zero(n);
+    b = Eigen::VectorXd::Zero(n);
+    chi2_lin = 0.0;
+
+    // The fill-reducing order of the poses, from their adjacency.
+    std::vector<int> order;
+    if (used > 0 && !reuse_analysis) {
+      std::vector<std::vector<int>> neighbors(used);
+      for (int e : edges) {
+        const int a = SlotOf(graph->edge(e).from);
+        const int c = SlotOf(graph->edge(e).to);
+        if (a < 0 || c < 0 || a == c) continue;
+        neighbors[std::max(a, c)].push_back(std::min(a, c));
+      }
+      int entries = 0;
+      for (auto& column : neighbors) {
+        std::sort(column.begin(), column.end());
+        column.erase(std::unique(column.begin(), column.end()), column.end());
+        entries += static_cast<int>(column.size()) + 1;
+      }
+      cholmod_sparse* pattern =
+          cholmod_allocate_sparse(used, used, entries, 1, 1, 1, CHOLMOD_PATTERN, &common);
+      if (pattern == nullptr) return false;
+      int* p = static_cast<int*>(pattern->p);
+      int* i = static_cast<int*>(pattern->i);
+      int k = 0;
+      for (int c = 0; c < used; ++c) {
+        p[c] = k;
+        for (int r : neighbors[c]) i[k++] = r;
+        i[k++] = c;
+      }
+      p[used] = k;
+      order.resize(used);
+      const int ok = cholmod_amd(pattern, nullptr, 0, order.data(), &common);
+      cholmod_free_sparse(&pattern, &common);
+      if (!ok) return false;
+    }
+    std::vector<int> perm;
+    if (!reuse_analysis) {
+      perm.reserve(n);
+      for (int s : order) {
+        for (int a = 0; a < d; ++a) perm.push_back(s * d + a);
+      }
+      for (int s = used; s < capacity; ++s) {
+        for (int a = 0; a < d; ++a) perm.push_back(s * d + a);
+      }
+      position.assign(n, 0);
+      for (int k = 0; k < n; ++k) position[perm[k]] = k;
+    }
+
+    // H at x_lin (upper triangle, original order), identity on the free places.
+    std::vector<Term> terms;
+    terms.reserve(edges.size());
+    for (int e : edges) terms.push_back(Linearize(e));
+    const size_t max_entries = terms.size() * 3 * d * d + static_cast<size_t>(n);
+    cholmod_triplet* triplet =
+        cholmod_allocate_triplet(n, n, max_entries, 1, CHOLMOD_REAL, &common);
+    if (triplet == nullptr) return false;
+    int* ti = static_cast<int*>(triplet->i);
+    int* tj = static_cast<int*>(triplet->j);
+    double* tx = static_cast<double*>(triplet->x);
+    size_t count = 0;
+    auto add_block = [&](int row_slot, int column_slot, const Matrix& block) {
+      for (int a = 0; a < d; ++a) {
+        for (int c = 0; c < d; ++c) {
+          int row = row_slot * d + a;
+          int column = column_slot * d + c;
+          if (row > column) continue;
+          ti[count] = row;
+          tj[count] = column;
+          tx[count] = block(a, c);
+          ++count;
+        }
+      }
+    };
+    for (const Term& t : terms) {
+      AccumulateRightHandSide(t, 1.0);
+      if (t.slot_from >= 0) add_block(t.slot_from, t.slot_from, t.J_from.transpose() * t.J_from);
+      if (t.slot_to >= 0) add_block(t.slot_to, t.slot_to, t.J_to.transpose() * t.J_to);
+      if (t.slot_from >= 0 && t.slot_to >= 0) {
+        const Matrix cross = t.J_from.transpose() * t.J_to;
+        if (t.slot_from < t.slot_to) {
+          add_block(t.slot_from, t.slot_to, cross);
+        } else {
+          add_block(t.slot_to, t.slot_from, cross.transpose());
+        }
+      }
+    }
+    for (int k = used * d; k < n; ++k) {
+      ti[count] = tj[count] = k;
+      tx[count] = 1.0;
+      ++count;
+    }
+    triplet->nnz = count;
+    cholmod_sparse* A = cholmod_triplet_to_sparse(triplet, static_cast<size_t>(count), &common);
+    cholmod_free_triplet(&triplet, &common);
+    if (A == nullptr) return false;
+    FreeFactor();
+    // Supernodal where CHOLMOD judges it faster (3D graphs: six times), then converted to the
+    // simplicial LDL' that updates need.
+    if (reuse_analysis) {
+      factor = cholmod_copy_factor(symbolic, &common);
+    } else {
+      if (symbolic != nullptr) cholmod_free_factor(&symbolic, &common);
+      common.supernodal = CHOLMOD_AUTO;
+      factor = cholmod_analyze_p(A, perm.data(), nullptr, 0, &common);
+      rebuild_flops = common.fl;
+      if (factor != nullptr) symbolic = cholmod_copy_factor(factor, &common);
+      analyzed_version = structure_version;
+    }
+    bool ok =
+        factor != nullptr && cholmod_factorize(A, factor, &common) && common.status == CHOLMOD_OK;
+    cholmod_free_sparse(&A, &common);
+    if (ok && factor->is_super) {
+      ok = cholmod_change_factor(CHOLMOD_REAL, false, false, true, true, factor, &common) &&
+           common.status == CHOLMOD_OK;
+    }
+    if (!ok) return false;
+    nonzeros_after_build = FactorNonzeros();
+    modifications_since_check = 0;
+    rebuild_due = false;
+    return true;
+  }
+
+  // delta = H^-1 b; x = x_lin (+) delta.
+  bool SolveSystem() {
+    ++counters.solves;
+    const int n = capacity * d;
+    cholmod_dense rhs;
+    rhs.nrow = n;
+    rhs.ncol = 1;
+    rhs.nzmax = n;
+    rhs.d = n;
+    rhs.x = b.data();
+    rhs.z = nullptr;
+    rhs.xtype = CHOLMOD_REAL;
+    rhs.dtype = CHOLMOD_DOUBLE;
+    if (!cholmod_solve2(
+            CHOLMOD_A, factor, &rhs, nullptr, &solution, nullptr, &work_y, &work_e, &common)) {
+      return false;
+    }
+    delta = Eigen::Map<const Eigen::VectorXd>(static_cast<const double*>(solution->x), n);
+    if (!delta.allFinite()) return false;
+    const int used = static_cast<int>(vertex_of_slot.size());
+    for (int s = 0; s < used; ++s) x[s] = x_lin[s].Retract(delta.segment<d>(s * d));
+    return true;
+  }
+
+  double ModelChi2() const { return chi2_lin - b.dot(delta); }
+  double ExactChi2() const {
+    double chi2 = 0.0;
+    for (int e : edges) {
+      const Edge<Pose>& edge = graph->edge(e);
+      const typename Pose::Tangent r = RelativePoseResidual<Pose>(
+          edge.measurement, Estimate(edge.from), Estimate(edge.to), nullptr, nullptr);
+      chi2 += r.dot(edge.information * r);
+    }
+    return chi2;
+  }
+
+  // Relinearizes the poses `slots` at x: every edge touching them gets its term at the new
+  // linearization points (the new terms added before the old ones leave, so that H stays
+  // positive definite throughout).
+  bool Relinearize(const std::vector<int>& slots) {
+    std::vector<char> touched(edge_position.size(), 0);
+    std::vector<int> affected;
+    for (int s : slots) {
+      for (int e : incident[s]) {
+        if (!touched[e]) {
+          touched[e] = 1;
+          affected.push_back(e);
+        }
+      }
+    }
+    std::vector<Term> old_terms;
+    for (int e : affected) old_terms.push_back(Linearize(e));
+    for (int s : slots) {
+      if (trial_active && !trial.moved[s]) trial.moved[s] = 1;
+      x_lin[s] = x[s];
+      delta.segment<d>(s * d).setZero();
+    }
+    std::vector<Term> new_terms;
+    for (int e : affected) new_terms.push_back(Linearize(e));
+    for (const Term& t : old_terms) AccumulateRightHandSide(t, -1.0);
+    for (const Term& t : new_terms) AccumulateRightHandSide(t, 1.0);
+    counters.relinearized += static_cast<long>(slots.size());
+    return Modify(new_terms, true) && Modify(old_terms, false);
+  }
+
+  // Gauss-Newton to convergence: solve, relinearize what moved past the bounds, again. Full
+  // Gauss-Newton steps suit the small corrections of most changes. When a change moves much of
+  // the graph (a loop closing a long cycle), or the iteration does not settle, the optimum is
+  // found by a batch solve with step control (Optimizer: Gauss-Newton that halves a step raising
+  // chi2) from the better of the start and the last iterate, and the system is rebuilt there.
+  IncrementalSummary Optimize() {
+    IncrementalSummary summary;
+    constexpr int kt = Pose::kTranslationDim;
+    const int used = static_cast<int>(vertex_of_slot.size());
+    const std::vector<Pose> start(x.begin(), x.begin() + used);
+    double previous = std::numeric_limits<double>::infinity();
+    int rises = 0;
+    bool batch_solved = false;
+    const int max_iterations = trial_active ? options.trial_max_iterations : options.max_iterations;
+    for (int iteration = 0; iteration < max_iterations; ++iteration) {
+      if (rebuild_due && !Rebuild(false)) return Failed(summary, "factorization failed (rebuild)");
+      if (!SolveSystem()) return Failed(summary, "the linear system could not be solved");
+      ++summary.iterations;
+      const double chi2 = ModelChi2();
+      rises = chi2 > previous * (1.0 + kRiseTolerance) ? rises + 1 : 0;
+      previous = chi2;
+      std::vector<int> moved;
+      for (int s = 0; s < used; ++s) {
+        const auto step = delta.segment<d>(s * d);
+        if (step.template tail<d - kt>().norm() > options.relinearize_rotation_rad ||
+            step.template head<kt>().norm() > options.relinearize_translation) {
+          moved.push_back(s);
+        }
+      }
+      if (moved.empty()) {
+        summary.ok = true;
+        summary.chi2 = chi2;
+        return summary;
+      }
+      summary.relinearized += static_cast<int>(moved.size());
+      std::vector<int> moved_edge_list;
+      for (int q : moved)
+        moved_edge_list.insert(moved_edge_list.end(), incident[q].begin(), incident[q].end());
+      std::sort(moved_edge_list.begin(), moved_edge_list.end());
+      moved_edge_list.erase(std::unique(moved_edge_list.begin(), moved_edge_list.end()),
+                            moved_edge_list.end());
+      const bool large = CheaperToRebuild(moved_edge_list, 2);
+      // Unsettled: rising, or running out of iterations (a trial gets a batch solve half way and
+      // fails if that does not settle it).
+      const bool unsettled =
+          rises >= kMaxRises ||
+          iteration + 2 >= (trial_active && !batch_solved ? max_iterations / 2 : max_iterations);
+      if (unsettled && trial_active && batch_solved) return Failed(summary, "did not converge");
+      if (unsettled && !batch_solved) {
+        batch_solved = true;
+        if (!BatchSolve(start)) return Failed(summary, "the batch solve failed");
+        if (!Rebuild(false)) return Failed(summary, "factorization failed (rebuild)");
+      } else if (large) {
+        if (!Rebuild(false)) return Failed(summary, "factorization failed (rebuild)");
+      } else if (!Relinearize(moved)) {
+        // A downdate that fails numerically leaves the factor unusable: start afresh.
+        if (!Rebuild(false)) return Failed(summary, "factorization failed (rebuild)");
+      }
+    }
+    summary.ok = true;
+    summary.chi2 = ModelChi2();
+    summary.message = "stopped at max_iterations";
+    return summary;
+  }
+
+  // x = the optimum of the problem by Optimizer, from `start` or the current x, whichever has the
+  // lower chi2.
+  bool BatchSolve(const std::vector<Pose>& start) {
+    ++counters.batch_solves;
+    const int used = static_cast<int>(vertex_of_slot.size());
+    const double chi2_now = ExactChi2();
+    std::vector<Pose> poses(graph->num_vertices());
+    for (int s = 0; s < used; ++s) poses[vertex_of_slot[s]] = x[s];
+    poses[anchor] = anchor_pose;
+    double chi2_start = 0.0;
+    for (int e : edges) {
+      const Edge<Pose>& edge = graph->edge(e);
+      const Pose& from = edge.from == anchor ? anchor_pose : start[slot_of[edge.from]];
+      const Pose& to = edge.to == anchor ? anchor_pose : start[slot_of[edge.to]];
+      const Tangent r = RelativePoseResidual<Pose>(edge.measurement, from, to, nullptr, nullptr);
+      chi2_start += r.dot(edge.information * r);
+    }
+    if (chi2_start < chi2_now) {
+      for (int s = 0; s < used; ++s) poses[vertex_of_slot[s]] = start[s];
+    }
+    std::vector<char> active(graph->num_edges(), 0);
+    for (int e : edges) active[e] = 1;
+    const OptimizerSummary summary = batch_optimizer.Solve(*graph, active, &poses);
+    if (!summary.IsSolutionUsable()) return false;
+    for (int s = 0; s < used; ++s) x[s] = poses[vertex_of_slot[s]];
+    return true;
+  }
+
+  IncrementalSummary& Failed(IncrementalSummary& summary, const std::string& message) {
+    summary.ok = false;
+    summary.message = message;
+    return summary;
+  }
+
+  void SetEdges(const std::vector<int>& new_edges) {
+    ++structure_version;
+    edges = new_edges;
+    edge_position.assign(graph->num_edges(), -1);
+    for (size_t k = 0; k < edges.size(); ++k) edge_position[edges[k]] = static_cast<int>(k);
+    incident.assign(vertex_of_slot.size(), {});
+    for (int e : edges) AddIncidence(e);
+  }
+
+  void AddIncidence(int e) {
+    ++structure_version;
+    const int a = SlotOf(graph->edge(e).from);
+    const int c = SlotOf(graph->edge(e).to);
+    if (a >= 0) incident[a].push_back(e);
+    if (c >= 0 && c != a) incident[c].push_back(e);
+  }
+
+  void RemoveIncidence(int e) {
+    ++structure_version;
+    for (int v : {graph->edge(e).from, graph->edge(e).to}) {
+      const int s = SlotOf(v);
+      if (s < 0) continue;
+      auto& list = incident[s];
+      list.erase(std::remove(list.begin(), list.end(), e), list.end());
+    }
+  }
+
+  void EnsureEdgeIndex() {
+    if (static_cast<int>(edge_position.size()) < graph->num_edges()) {
+      edge_position.resize(graph->num_edges(), -1);
+    }
+  }
+
+  // ---- covariance --------------------------------------------------------------------------
+
+  Eigen::MatrixXd Covariance(const std::vector<int>& query) const {
+    const int m = static_cast<int>(query.size());
+    Eigen::MatrixXd covariance = Eigen::MatrixXd::Zero(d * m, d * m);
+    const int* Lp = static_cast<const int*>(factor->p);
+    const int* Li = static_cast<const int*>(factor->i);
+    const int* Lnz = static_cast<const int*>(factor->nz);
+    const double* Lx = static_cast<const double*>(factor->x);
+    // The union of the elimination-tree paths from each queried variable to the root, in
+    // ascending (topological) order.
+    std::vector<int> columns;
+    std::vector<int> starts(d * m, -1);
+    for (int k = 0; k < m; ++k) {
+      const int s = SlotOf(query[k]);
+      IRRR_CHECK(s >= 0 || query[k] == anchor);
+      if (s < 0) continue;
+      for (int a = 0; a < d; ++a) starts[k * d + a] = position[s * d + a];
+    }
+    mark.resize(factor->n, 0);
+    for (int start : starts) {
+      for (int j = start; j >= 0 && !mark[j];) {
+        mark[j] = 1;
+        columns.push_back(j);
+        j = Lnz[j] > 1 ? Li[Lp[j] + 1] : -1;
+      }
+    }
+    std::sort(columns.begin(), columns.end());
+    row_of.resize(factor->n, -1);
+    for (size_t k = 0; k < columns.size(); ++k) row_of[columns[k]] = static_cast<int>(k);
+    // Y = L^-1 P [e_i ...] on those rows, then covariance = Y' D^-1 Y.
+    RowMajorMatrix Y = RowMajorMatrix::Zero(columns.size(), d * m);
+    for (int c = 0; c < d * m; ++c) {
+      if (starts[c] >= 0) Y(row_of[starts[c]], c) = 1.0;
+    }
+    Eigen::VectorXd inverse_d(columns.size());
+    for (size_t k = 0; k < columns.size(); ++k) {
+      const int j = columns[k];
+      const int p = Lp[j];
+      inverse_d(k) = 1.0 / Lx[p];
+      const auto yj = Y.row(k);
+      for (int q = p + 1; q < p + Lnz[j]; ++q) Y.row(row_of[Li[q]]) -= Lx[q] * yj;
+    }
+    covariance = Y.transpose() * inverse_d.asDiagonal() * Y;
+    for (int j : columns) {
+      mark[j] = 0;
+      row_of[j] = -1;
+    }
+    return covariance;
+  }
+
+  const PoseGraph<Pose>* graph;
+  IncrementalSolverOptions options;
+  Counters counters;
+  Optimizer<Pose> batch_optimizer;
+
+  int anchor = -1;
+  Pose anchor_pose;
+  std::vector<int> vertices;               // in the problem, the anchor first
+  std::vector<int> edges;                  // in the problem
+  std::vector<int> edge_position;          // per graph edge: index in `edges`, or -1
+  std::vector<int> slot_of;                // per graph vertex: its place, -1 (none, or the anchor)
+  std::vector<int> vertex_of_slot;         // per place in use
+  std::vector<std::vector<int>> incident;  // per place in use: the problem's edges touching it
+  std::vector<Pose> x_lin;                 // per place: linearization point
+  std::vector<Pose> x;                     // per place: estimate, x_lin (+) delta
+  Eigen::VectorXd delta;                   // per scalar variable (original order)
+  Eigen::VectorXd b;
+  double chi2_lin = 0.0;  // sum of r'Omega r at the linearization points
+
+  int capacity = 0;  // places in the factor
+  cholmod_common common;
+  cholmod_factor* factor = nullptr;
+  // The symbolic analysis of the structure (poses, free places and edges) of version
+  // analyzed_version; structure_version counts the structure's changes.
+  cholmod_factor* symbolic = nullptr;
+  long structure_version = 0;
+  long analyzed_version = -1;
+  std::vector<int> position;  // per scalar variable: its row in the factor
+  double nonzeros_after_build = 0.0;
+  double rebuild_flops = 0.0;  // of the last factorization
+  int modifications_since_check = 0;
+  bool rebuild_due = false;
+  int rebuilds_this_call = 0;
+  cholmod_dense* solution = nullptr;
+  cholmod_dense* work_y = nullptr;
+  cholmod_dense* work_e = nullptr;
+  mutable std::vector<char> mark;  // Covariance's workspace
+  mutable std::vector<int> row_of;
+
+  bool trial_active = false;
+  Trial trial;
+};
+
+}  // namespace irrr
+
+#endif  // IRRR_CORE_INCREMENTAL_SOLVER_IMPL_H_
