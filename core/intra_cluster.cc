@@ -29,66 +29,6 @@ bool WarmIntraClusterImpl(LocalProblems<Pose>* problems,
                           int cluster,
                           DecisionBook* book,
                           std::vector<int>* changed,
-                          std::vector<int>* splits);
-
-}  // namespace
-
-template <class Pose>
-bool PaperIntraCluster(LocalProblems<Pose>* problems,
-                       const TestThresholds& thresholds,
-                       bool exact_dof,
-                       int cluster,
-                       DecisionBook* book,
-                       std::vector<int>* changed) {
-  JudgedCluster& c = book->clusters[cluster];
-  const LocalSolution solution = SolveCluster(problems, thresholds, c.links);
-  const OptimizerSummary& summary = solution.summary;
-  const double graph_threshold = GraphThreshold(thresholds, summary, exact_dof);
-  const double link_threshold = thresholds.Of(Pose::kDim);
-  if (!solution.ok() || !(summary.final_chi2 < graph_threshold)) {
-    for (int e : c.links) {
-      book->Set(e, LoopState::kRejectedClusterTest, summary.final_chi2, graph_threshold, changed);
-    }
-    c.links.clear();
-  } else {
-    std::vector<int> kept;
-    for (int e : c.links) {
-      const double chi2 = summary.edge_chi2[e];
-      const bool pass = chi2 < link_threshold;
-      if (pass) kept.push_back(e);
-      book->Set(e,
-                pass ? LoopState::kPending : LoopState::kRejectedLinkTest,
-                chi2,
-                link_threshold,
-                changed);
-    }
-    c.links = kept;
-  }
-  c.in_r = !c.links.empty();
-  return c.in_r;
-}
-
-template <class Pose>
-bool WarmIntraCluster(LocalProblems<Pose>* problems,
-                      const PairwiseConsistency<Pose>* pairwise,
-                      const TestThresholds& thresholds,
-                      int cluster,
-                      DecisionBook* book,
-                      std::vector<int>* changed,
-                      std::vector<int>* splits) {
-  return WarmIntraClusterImpl(problems, pairwise, pairwise, thresholds, cluster, book, changed, splits);
-}
-
-namespace {
-
-template <class Pose>
-bool WarmIntraClusterImpl(LocalProblems<Pose>* problems,
-                          const PairwiseConsistency<Pose>* pairwise,
-                          const PairwiseConsistency<Pose>* pairwise_for_noise,
-                          const TestThresholds& thresholds,
-                          int cluster,
-                          DecisionBook* book,
-                          std::vector<int>* changed,
                           std::vector<int>* splits) {
   const double link_threshold = thresholds.Of(Pose::kDim);
   if (pairwise != nullptr && book->clusters[cluster].links.size() >= 2) {
@@ -207,6 +147,53 @@ bool WarmIntraClusterImpl(LocalProblems<Pose>* problems,
 }
 
 }  // namespace
+
+template <class Pose>
+bool PaperIntraCluster(LocalProblems<Pose>* problems,
+                       const TestThresholds& thresholds,
+                       bool exact_dof,
+                       int cluster,
+                       DecisionBook* book,
+                       std::vector<int>* changed) {
+  JudgedCluster& c = book->clusters[cluster];
+  const LocalSolution solution = SolveCluster(problems, thresholds, c.links);
+  const OptimizerSummary& summary = solution.summary;
+  const double graph_threshold = GraphThreshold(thresholds, summary, exact_dof);
+  const double link_threshold = thresholds.Of(Pose::kDim);
+  if (!solution.ok() || !(summary.final_chi2 < graph_threshold)) {
+    for (int e : c.links) {
+      book->Set(e, LoopState::kRejectedClusterTest, summary.final_chi2, graph_threshold, changed);
+    }
+    c.links.clear();
+  } else {
+    std::vector<int> kept;
+    for (int e : c.links) {
+      const double chi2 = summary.edge_chi2[e];
+      const bool pass = chi2 < link_threshold;
+      if (pass) kept.push_back(e);
+      book->Set(e,
+                pass ? LoopState::kPending : LoopState::kRejectedLinkTest,
+                chi2,
+                link_threshold,
+                changed);
+    }
+    c.links = kept;
+  }
+  c.in_r = !c.links.empty();
+  return c.in_r;
+}
+
+template <class Pose>
+bool WarmIntraCluster(LocalProblems<Pose>* problems,
+                      const PairwiseConsistency<Pose>* pairwise,
+                      const TestThresholds& thresholds,
+                      int cluster,
+                      DecisionBook* book,
+                      std::vector<int>* changed,
+                      std::vector<int>* splits) {
+  return WarmIntraClusterImpl(
+      problems, pairwise, pairwise, thresholds, cluster, book, changed, splits);
+}
 
 template <class Pose>
 RedundancySample ClusterRedundancy(LocalProblems<Pose>* problems,

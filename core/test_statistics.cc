@@ -82,50 +82,6 @@ LinearizedAddition LinearizeAddition(const std::vector<const Edge<Pose>*>& edges
   return out;
 }
 
-template <class Pose>
-double LinearizedRemoval(const std::vector<const Edge<Pose>*>& edges,
-                         const std::vector<int>& vertices,
-                         const std::vector<Pose>& poses,
-                         const Eigen::MatrixXd& covariance) {
-  constexpr int d = Pose::kDim;
-  const int n = static_cast<int>(edges.size());
-  const int m = static_cast<int>(vertices.size());
-  IRRR_CHECK(covariance.rows() == d * m && covariance.cols() == d * m &&
-             static_cast<int>(poses.size()) == m);
-  auto index_of = [&vertices](int v) {
-    const auto it = std::find(vertices.begin(), vertices.end(), v);
-    IRRR_CHECK(it != vertices.end());
-    return static_cast<int>(it - vertices.begin());
-  };
-  Eigen::VectorXd r(d * n);
-  Eigen::MatrixXd J = Eigen::MatrixXd::Zero(d * n, d * m);
-  Eigen::MatrixXd C = Eigen::MatrixXd::Zero(d * n, d * n);
-  typename Pose::Matrix J_from;
-  typename Pose::Matrix J_to;
-  for (int k = 0; k < n; ++k) {
-    const Edge<Pose>& edge = *edges[k];
-    const int from = index_of(edge.from);
-    const int to = index_of(edge.to);
-    r.segment<d>(k * d) =
-        RelativePoseResidual<Pose>(edge.measurement, poses[from], poses[to], &J_from, &J_to);
-    J.block<d, d>(k * d, from * d) += J_from;
-    J.block<d, d>(k * d, to * d) += J_to;
-    C.block<d, d>(k * d, k * d) = edge.information.inverse();
-  }
-  const Eigen::MatrixXd S = C - J * covariance * J.transpose();
-  const Eigen::LLT<Eigen::MatrixXd> llt(0.5 * (S + S.transpose()));
-  if (llt.info() != Eigen::Success) return std::numeric_limits<double>::quiet_NaN();
-  return r.dot(llt.solve(r));
-}
-
-template double LinearizedRemoval<Pose2>(const std::vector<const Edge<Pose2>*>&,
-                                         const std::vector<int>&,
-                                         const std::vector<Pose2>&,
-                                         const Eigen::MatrixXd&);
-template double LinearizedRemoval<Pose3>(const std::vector<const Edge<Pose3>*>&,
-                                         const std::vector<int>&,
-                                         const std::vector<Pose3>&,
-                                         const Eigen::MatrixXd&);
 template LinearizedAddition LinearizeAddition<Pose2>(const std::vector<const Edge<Pose2>*>&,
                                                      const std::vector<Pose2>&,
                                                      const std::vector<int>&,

@@ -83,20 +83,6 @@ LinearizedAddition LinearizeAddition(const std::vector<const Edge<Pose>*>& edges
                                      const std::vector<int>& vertices,
                                      const Eigen::MatrixXd& covariance);
 
-// Removing `edges` from a least-squares problem whose optimum, with them, puts the poses
-// `vertices` at `poses` (in the same order), to first order: r the edges' stacked residuals
-// there, J their Jacobians, Sigma the poses' joint covariance with the edges in the problem,
-// C = blockdiag(Omega^-1), S = C - J Sigma J' (the residuals' own covariance at the optimum).
-// r' S^-1 r is the chi2 decrease of removing them (Baarda's data snooping, for a group): large
-// when they bend the rest of the problem to fit them, even though their own residuals are small
-// there. Exact on a linear-Gaussian problem. NaN when S is not positive definite (the edges alone
-// determine some pose). The information is taken as given.
-template <class Pose>
-double LinearizedRemoval(const std::vector<const Edge<Pose>*>& edges,
-                         const std::vector<int>& vertices,
-                         const std::vector<Pose>& poses,
-                         const Eigen::MatrixXd& covariance);
-
 }  // namespace irrr
 
 #endif  // IRRR_CORE_TEST_STATISTICS_H_
