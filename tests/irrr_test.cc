@@ -380,7 +380,7 @@ TEST_CASE("A lone loop the estimate cannot check waits; one it can check is judg
 }
 
 // The paper's multi-session experiment (IV.B): Intel cut into four sessions, each re-based in its
-// own frame, plus 600 wrong loops in 200 internally consistent groups of 3. About 15 s in Release
+// own frame, plus 600 wrong loops in 200 internally consistent groups of 3. About 35 s in Release
 // with the warm engine ([slow]: left out of the sanitizer run).
 TEST_CASE(
     "Intel in four sessions with 200 wrong groups merges into one map and accepts no wrong loop",
