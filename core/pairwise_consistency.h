@@ -49,7 +49,7 @@ class PairwiseConsistency {
   // The variance factor the links' pairwise statistics imply on their own: the median statistic
   // over their pairs (at most kFactorPairs of them, spread evenly) over the chi-square median. A
   // minority of wrong links moves a median little; 0 for fewer than two links. Pairs share links,
-  // and the median comes out low (by up to a third on synthetic 3D clusters), which errs toward
+  // and the median comes out low (by a third to 40% on synthetic 3D clusters), which errs toward
   // keeping links together.
   double PairwiseFactor(const std::vector<int>& links) const;
 

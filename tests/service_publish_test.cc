@@ -105,7 +105,7 @@ std::vector<Service::SessionEstimate> RunFleet(const std::vector<ReplayMessage>&
 TEST_CASE(
     "A fleet in one file: each robot sends its part, and the map frame does not depend on "
     "who was heard first",
-    "[daemon]") {
+    "[daemon][slow]") {
   const FleetCase c = MakeFleetCase(TestDirectory("daemon_fleet"));
   // Every message is sent by exactly one robot: keyframes and END by their session's robot,
   // a loop by the robot of its later pose.

@@ -273,7 +273,7 @@ TEST_CASE("A full input queue refuses, then re-requests what it refused: nothing
 }
 
 TEST_CASE("Under 10% loss, duplicates and reordering the service decides as without them",
-          "[reliability]") {
+          "[reliability][slow]") {
   const Case& c = IntelCase();
   for (uint32_t seed : {1u, 2u}) {
     RecordingSink sink;

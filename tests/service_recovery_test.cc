@@ -98,7 +98,7 @@ void CheckSameState(const Service& service,
 }
 
 TEST_CASE("A service that dies mid-stream restarts from its journal and ends as if it had not",
-          "[reliability]") {
+          "[reliability][slow]") {
   const Case& c = IntelCase();
   // Without snapshots a restart re-runs every step; with them only the steps after the last one.
   const int snapshot_every = GENERATE(0, 40);
@@ -228,7 +228,7 @@ std::string Restart(const std::string& path,
 }
 
 TEST_CASE("A restart from a snapshot runs no step it covers and rebuilds the same state",
-          "[reliability]") {
+          "[reliability][slow]") {
   const Case& c = IntelCase();
   const std::string path = TestDirectory("reliability_snapshot") + "/journal";
   std::vector<HypothesisDecision> decisions;
