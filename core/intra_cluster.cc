@@ -125,7 +125,7 @@ bool WarmIntraClusterImpl(LocalProblems<Pose>* problems,
   c.links = links;
   c.in_r = !links.empty();
   if (!c.in_r) return false;
-  const RedundancySample sample = ClusterRedundancy(problems, pairwise_for_noise, links, solution);
+  const RedundancySample sample = ClusterRedundancy(*pairwise_for_noise, links, solution);
   c.redundancy_chi2 = sample.chi2;
   c.redundancy_dof = sample.dof;
   // The links that stayed out: a cluster of their own.
@@ -191,23 +191,17 @@ bool WarmIntraCluster(LocalProblems<Pose>* problems,
                       DecisionBook* book,
                       std::vector<int>* changed,
                       std::vector<int>* splits) {
+  IRRR_CHECK(pairwise != nullptr);
   return WarmIntraClusterImpl(
       problems, pairwise, pairwise, thresholds, cluster, book, changed, splits);
 }
 
 template <class Pose>
-RedundancySample ClusterRedundancy(LocalProblems<Pose>* problems,
-                                   const PairwiseConsistency<Pose>* pairwise,
+RedundancySample ClusterRedundancy(const PairwiseConsistency<Pose>& pairwise,
                                    const std::vector<int>& links,
                                    const LocalSolution& solution) {
   if (links.size() < 2 || !solution.ok()) return {};
-  if (pairwise != nullptr) {
-    if (pairwise->Noiseless(links, kNoiseless * Pose::kDim)) return {};
-  } else {
-    const LocalSolution internal =
-        problems->InternalRedundancy(links, std::numeric_limits<double>::max());
-    if (!internal.ok() || !(internal.chi2 > kNoiseless * internal.dof)) return {};
-  }
+  if (pairwise.Noiseless(links, kNoiseless * Pose::kDim)) return {};
   return {solution.chi2, solution.dof};
 }
 
@@ -229,12 +223,10 @@ template bool WarmIntraCluster<Pose3>(LocalProblems<Pose3>*,
                                       DecisionBook*,
                                       std::vector<int>*,
                                       std::vector<int>*);
-template RedundancySample ClusterRedundancy<Pose2>(LocalProblems<Pose2>*,
-                                                   const PairwiseConsistency<Pose2>*,
+template RedundancySample ClusterRedundancy<Pose2>(const PairwiseConsistency<Pose2>&,
                                                    const std::vector<int>&,
                                                    const LocalSolution&);
-template RedundancySample ClusterRedundancy<Pose3>(LocalProblems<Pose3>*,
-                                                   const PairwiseConsistency<Pose3>*,
+template RedundancySample ClusterRedundancy<Pose3>(const PairwiseConsistency<Pose3>&,
                                                    const std::vector<int>&,
                                                    const LocalSolution&);
 

@@ -44,7 +44,7 @@ double PairwiseThreshold(const TestThresholds& thresholds) {
 
 // Algorithm 1 of the warm engine (beyond the paper: one wrong link clustered with true ones must
 // not take them down with it, nor the reverse). The graph test counts degrees of freedom exactly.
-//  - With `pairwise` (not null), the cluster keeps its largest set of pairwise consistent links
+//  - The cluster keeps (`pairwise`, not null) its largest set of pairwise consistent links
 //    (PairwiseConsistency::ConsistentSubsets); each other set becomes a cluster of its own.
 //  - While the graph test fails, the link with the largest d^2 at the cluster's optimum leaves;
 //    when it passes, every link failing the link test leaves; then the cluster is solved again.
@@ -65,16 +65,13 @@ bool WarmIntraCluster(LocalProblems<Pose>* problems,
 
 // A sample of the variance factor from a cluster: chi2 and degrees of freedom at `solution`, the
 // optimum of its links with the odometry that joins them (Algorithm 1's). None for a single link,
-// or when the links agree with each other to rounding (their internal redundancy,
-// LocalProblems::InternalRedundancy, below kNoiseless per degree of freedom): a duplicated or
-// synthesized constraint carries no noise of its own, and whatever the odometry between its sides
-// must give to fit it says nothing of the noise.
+// or when the links agree with each other to rounding (every pairwise statistic against the first
+// below kNoiseless per dimension, PairwiseConsistency::Noiseless): a duplicated or synthesized
+// constraint carries no noise of its own, and whatever the odometry between its sides must give
+// to fit it says nothing of the noise.
 constexpr double kNoiseless = 1e-12;
-// With `pairwise` the noiselessness is judged from the pairwise statistics, otherwise from the
-// internal redundancy's own solve.
 template <class Pose>
-RedundancySample ClusterRedundancy(LocalProblems<Pose>* problems,
-                                   const PairwiseConsistency<Pose>* pairwise,
+RedundancySample ClusterRedundancy(const PairwiseConsistency<Pose>& pairwise,
                                    const std::vector<int>& links,
                                    const LocalSolution& solution);
 

@@ -141,7 +141,7 @@ struct WarmEngine<Pose>::Impl {
     for (int round = 0; round < rounds && links.size() >= 2; ++round) {
       const LocalSolution solution =
           problems.Solve(problems.SessionsOf(links), links, AlignmentCap());
-      const RedundancySample sample = ClusterRedundancy(&problems, &pairwise, links, solution);
+      const RedundancySample sample = ClusterRedundancy(pairwise, links, solution);
       if (!(sample.dof > 0.0)) break;
       book->clusters[q].redundancy_chi2 = sample.chi2;
       book->clusters[q].redundancy_dof = sample.dof;

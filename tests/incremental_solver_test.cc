@@ -13,6 +13,7 @@ namespace irrr {
 namespace {
 
 using testing::MakeSyntheticGraph;
+using testing::NoisyOptions;
 using testing::RelativeDifference;
 using testing::SyntheticOptions;
 
@@ -30,16 +31,6 @@ constexpr double kCovarianceTolerance = 1e-8;
 // The same once poses have moved within the relinearization bounds of their linearization
 // points: the covariance is that of the linearization points (measured: 5e-4 relative).
 constexpr double kLaggingCovarianceTolerance = 1e-2;
-
-template <class Pose>
-SyntheticOptions NoisyOptions(uint32_t seed) {
-  SyntheticOptions options;
-  options.num_poses = Pose::kDim == 3 ? 400 : 300;
-  options.translation_sigma_m = 0.05;
-  options.rotation_sigma_rad = 0.01;
-  options.seed = seed;
-  return options;
-}
 
 // Feeds a one-session graph to a solver in arrival order: each pose by Extend, each loop by Add
 // as soon as its later pose has arrived. Returns the solver's estimate indexed like the graph.

@@ -16,6 +16,7 @@ namespace irrr {
 namespace {
 
 using testing::MakeSyntheticGraph;
+using testing::NoisyOptions;
 using testing::SyntheticOptions;
 
 // The pairwise statistic is the linearized chi2 of the cycle two links close with the odometry
@@ -23,16 +24,6 @@ using testing::SyntheticOptions;
 // links) has the same chi2 to first order. With 5 cm / 0.01 rad noise the second-order terms
 // are a few percent at most.
 constexpr double kLinearizationTolerance = 0.05;
-
-template <class Pose>
-SyntheticOptions Options(uint32_t seed) {
-  SyntheticOptions options;
-  options.num_poses = Pose::kDim == 3 ? 400 : 300;
-  options.translation_sigma_m = 0.05;
-  options.rotation_sigma_rad = 0.01;
-  options.seed = seed;
-  return options;
-}
 
 // Pairs of true loops whose ends are near each other on both sides (as in one cluster).
 template <class Pose>
@@ -60,7 +51,7 @@ TEMPLATE_TEST_CASE("The pairwise statistic equals the chi2 of the cycle's own op
                    "[pairwise]",
                    Pose2,
                    Pose3) {
-  const auto synthetic = MakeSyntheticGraph<TestType>(Options<TestType>(1));
+  const auto synthetic = MakeSyntheticGraph<TestType>(NoisyOptions<TestType>(1));
   const PoseGraph<TestType>& graph = synthetic.graph;
   const std::vector<TestType> dead_reckoning = graph.OdometryEstimate();
   PairwiseConsistency<TestType> pairwise(&graph, &dead_reckoning);
@@ -91,7 +82,7 @@ TEMPLATE_TEST_CASE("A consistent wrong group clustered with true loops is a subs
                    Pose3) {
   const uint32_t seed = GENERATE(2u, 3u);
   INFO("seed " << seed);
-  auto synthetic = MakeSyntheticGraph<TestType>(Options<TestType>(seed));
+  auto synthetic = MakeSyntheticGraph<TestType>(NoisyOptions<TestType>(seed));
   PoseGraph<TestType>& graph = synthetic.graph;
   // A true cluster: one loop and the true loops near it on both sides.
   const auto pairs = NearbyPairs(graph, synthetic.loop_edges);
@@ -148,7 +139,7 @@ TEMPLATE_TEST_CASE("The pairwise factor is the information's variance factor, a 
                    Pose3) {
   const double factor = GENERATE(0.02, 1.0);
   INFO("variance factor " << factor);
-  SyntheticOptions options = Options<TestType>(5);
+  SyntheticOptions options = NoisyOptions<TestType>(5);
   // Information = factor x the inverse noise covariance: every statistic scales with it.
   options.information_scale = factor;
   auto synthetic = MakeSyntheticGraph<TestType>(options);

@@ -41,6 +41,17 @@ struct SyntheticGraph {
 template <class Pose>
 SyntheticGraph<Pose> MakeSyntheticGraph(const SyntheticOptions& options);
 
+// One session with 5 cm / 0.01 rad noise on every measurement, 300 poses (400 in 3D).
+template <class Pose>
+SyntheticOptions NoisyOptions(uint32_t seed) {
+  SyntheticOptions options;
+  options.num_poses = Pose::kDim == 3 ? 400 : 300;
+  options.translation_sigma_m = 0.05;
+  options.rotation_sigma_rad = 0.01;
+  options.seed = seed;
+  return options;
+}
+
 // Tolerance-free comparison helper: largest translation (m) and rotation (rad) difference
 // between two trajectories after expressing both relative to pose `anchor`.
 template <class Pose>
