@@ -452,12 +452,9 @@ struct WarmEngine<Pose>::Impl {
     return true;
   }
 
-  // The larger of the global factor and cluster q's own, if it has redundancy enough of its own
-  // (kOwnFactorMinimumDof); 0 (the global factor) otherwise. Never above kOwnFactorRatio times
-  // the global factor, nor above 1 (as the global factor): wrong links clustered with true ones,
-  // or with each other, raise a cluster's own factor (on Sphere2500 + 1000 random to 6.9, and
-  // seven wrong loops passed at it; on Manhattan + 1000 random-grouped a cluster of two wrong
-  // groups stood at 0.95, 40 times the global factor, and passed).
+  // The larger of the global factor and cluster q's own (kOwnFactorMinimumDof of redundancy);
+  // 0 (the global factor) otherwise. At most kOwnFactorRatio times the global factor and 1: wrong
+  // links raise a cluster's own factor (Sphere2500 + 1000 random: to 6.9, seven wrong loops in).
   double OwnVariance(int q) const {
     const JudgedCluster& c = book->clusters[q];
     if (c.redundancy_dof < kOwnFactorMinimumDof) return 0.0;
