@@ -352,13 +352,7 @@ struct WarmEngine<Pose>::Impl {
     for (int q : candidates) {
       JudgedCluster& c = book->clusters[q];
       if (!c.in_r || c.links.empty()) continue;
-      if (Unsupported(q)) {
-        // Waits, as judged by nothing yet, for a good set that can check it.
-        c.in_r = false;
-        c.held = true;
-        book->Set(c.links.front(), LoopState::kPending, 0.0, 0.0, changed);
-        continue;
-      }
+      if (HoldIfUnsupported(q, changed)) continue;
       c.held = false;
       JointTest(q, result);
     }
@@ -428,6 +422,16 @@ struct WarmEngine<Pose>::Impl {
     return e >= static_cast<int>(control.size()) || !(control[e] >= kMinRedundancy);
   }
 
+  // An unsupported cluster waits, as judged by nothing yet, for a good set that can check it.
+  bool HoldIfUnsupported(int q, std::vector<int>* changed) {
+    if (!Unsupported(q)) return false;
+    JudgedCluster& c = book->clusters[q];
+    c.in_r = false;
+    c.held = true;
+    book->Set(c.links.front(), LoopState::kPending, 0.0, 0.0, changed);
+    return true;
+  }
+
   // The components a cluster touches.
   std::vector<int> ComponentsOf(int q) const {
     const JudgedCluster& c = book->clusters[q];
@@ -462,9 +466,11 @@ struct WarmEngine<Pose>::Impl {
     return std::max(variance, std::min(own, 1.0));
   }
 
-  // The runs of `links`: links whose ends lie within kRunGap poses of another's ends, in the
-  // order of their first link.
-  std::vector<std::vector<int>> LinkGroups(const std::vector<int>& links) const {
+  // The parts a cluster failing the joint test is judged again as: each run of two links or more
+  // (links whose ends lie within kRunGap poses of another's ends), in the order of its first
+  // link, and the lone links together (on their own, lone wrong links a few poses long are hard to
+  // tell from true ones).
+  std::vector<std::vector<int>> Runs(const std::vector<int>& links) const {
     std::vector<int> run(links.size());
     for (size_t k = 0; k < links.size(); ++k) run[k] = static_cast<int>(k);
     std::function<int(int)> root = [&](int k) { return run[k] == k ? k : run[k] = root(run[k]); };
@@ -489,24 +495,17 @@ struct WarmEngine<Pose>::Impl {
       }
       runs[r].push_back(links[k]);
     }
-    return runs;
-  }
-
-  // The parts a cluster failing the joint test is judged again as: each run of two links or
-  // more (LinkGroups), and the lone links together (on their own, lone wrong links a few poses
-  // long are hard to tell from true ones).
-  std::vector<std::vector<int>> Runs(const std::vector<int>& links) const {
-    std::vector<std::vector<int>> runs;
+    std::vector<std::vector<int>> parts;
     std::vector<int> lone;
-    for (std::vector<int>& run : LinkGroups(links)) {
-      if (run.size() >= 2) {
-        runs.push_back(std::move(run));
+    for (std::vector<int>& r : runs) {
+      if (r.size() >= 2) {
+        parts.push_back(std::move(r));
       } else {
-        lone.push_back(run.front());
+        lone.push_back(r.front());
       }
     }
-    if (!lone.empty()) runs.push_back(lone);
-    return runs;
+    if (!lone.empty()) parts.push_back(lone);
+    return parts;
   }
 
   // Cluster q, inconsistent with the good set as a whole, judged again as its runs: the largest
@@ -529,14 +528,7 @@ struct WarmEngine<Pose>::Impl {
     const double own = test_variance;
     test_variance = 0.0;
     for (int r : clusters) {
-      JudgedCluster& c = book->clusters[r];
-      if (Unsupported(r)) {
-        c.in_r = false;
-        c.held = true;
-        book->Set(c.links.front(), LoopState::kPending, 0.0, 0.0, &result->changed_loops);
-        continue;
-      }
-      JointTestAtScale(r, result);
+      if (!HoldIfUnsupported(r, &result->changed_loops)) JointTestAtScale(r, result);
     }
     test_variance = own;
   }
@@ -609,7 +601,7 @@ struct WarmEngine<Pose>::Impl {
         if (kept.empty()) break;
         continue;
       }
-      // Inconsistent as a whole. A cluster of several runs (LinkGroups: a few wrong links among
+      // Inconsistent as a whole. A cluster of several runs (Runs: a few wrong links among
       // a place's true ones form runs of their own) is judged again as its runs, each a cluster
       // of its own, so that a wrong run does not take the true ones down with it.
       const std::vector<std::vector<int>> runs = Runs(links);
