@@ -52,10 +52,10 @@ struct Dataset {
 
 const std::vector<Dataset>& Datasets() {
   static const std::vector<Dataset> datasets = {
-      {"manhattan", "datasets/manhattan/vertigo/Olson/manhattanOlson3500.g2o"},
-      {"city10000", "datasets/city10000/vertigo/city10000.g2o"},
-      {"sphere2500", "datasets/sphere2500/vertigo/sphere2500.g2o"},
-      {"intel", "datasets/intel/vertigo/intel.g2o"},
+      {"manhattan", "datasets/manhattan/vertigo/Olson/manhattanOlson3500.g2o", false, "", 0.0},
+      {"city10000", "datasets/city10000/vertigo/city10000.g2o", false, "", 0.0},
+      {"sphere2500", "datasets/sphere2500/vertigo/sphere2500.g2o", false, "", 0.0},
+      {"intel", "datasets/intel/vertigo/intel.g2o", false, "", 0.0},
       {"intel-4sessions",
        "data/intel_4sessions_grouped.g2o",
        true,
