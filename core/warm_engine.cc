@@ -14,11 +14,9 @@ namespace irrr {
 namespace {
 
 // A link whose linearized statistic is this many times its threshold, and kClusterMargin times its
-// cluster's median statistic, is rejected by the screen; closer ones go on to the nonlinear tests.
-// Hypotheses with random measurements score hundreds to millions of times the threshold. True
-// clusters that close long cycles can score several times their nonlinear chi2 increase (up to 5
-// on Manhattan), and a place recognizer's clusters can stand off the good set together (KITTI 05:
-// 17 links at 4.3 times): a cluster whose links agree goes on whole.
+// cluster's median statistic, is rejected by the screen (random hypotheses score hundreds to
+// millions of times it; true clusters closing long cycles up to 5 on Manhattan, and a place
+// recognizer's agreeing links stand off together: KITTI 05, 17 links at 4.3 times).
 constexpr double kScreenMargin = 4.0;
 constexpr double kClusterMargin = 20.0;
 // The smallest pairwise factor Calibrate uses (a noiseless cluster's pairs score 0).
@@ -36,14 +34,11 @@ constexpr double kScaleMinimumDof = 30.0;
 // A cluster with this much redundancy of its own is judged at the larger of the global factor and
 // its own.
 constexpr double kOwnFactorMinimumDof = 18.0;
-// ... and is never judged at more than this many times the global factor (measured: 1 costs
-// KITTI 05 22 of its 62 true loops; 4 and 8 let wrong groups in on Manhattan + 1000 local-grouped
-// or lose true clusters; 2 neither).
+// ... and at most this many times the global factor (the measurements: docs/decisions.md).
 constexpr double kOwnFactorRatio = 2.0;
 // Trimming rounds of a cluster's variance sample before any factor is known (Calibrate).
 constexpr int kCalibrationRounds = 6;
-// A good cluster accepted under a variance factor more than this many times today's is judged
-// again.
+// A good cluster accepted under a factor more than this many times today's is judged again.
 constexpr double kRevalidateRatio = 2.0;
 // Clusters that challenge good ones at once (Challenge), largest first.
 constexpr size_t kMaxChallengers = 8;
@@ -114,10 +109,8 @@ struct WarmEngine<Pose>::Impl {
     }
     if (!enough) return scale;
     scale.known = true;
-    // Never above 1: a factor above 1 says the information is over-confident, and the data cannot
-    // tell that from wrong links clustered with true ones (on KITTI's place-recognition graphs the
-    // estimate came out above 1 and let hundreds of wrong loops in; at 1 none). Over-confident
-    // information is fixed with irrr.variance_factor.
+    // Never above 1: the data cannot tell over-confident information from wrong links clustered
+    // with true ones (on KITTI an estimate above 1 let hundreds of wrong loops in; at 1 none).
     scale.variance = std::min(robust, 1.0);
     scale.dof = std::min(total, kMaxVarianceDof);
     return scale;
@@ -285,9 +278,8 @@ struct WarmEngine<Pose>::Impl {
   }
 
   // Recovering: clusters that have left the good set get back every link they held when they
-  // closed and are judged again against the good set as it is now (a wrong link accepted with
-  // true ones early is screened out, the true ones come back); their links that were accepted and
-  // do not come back are reversed.
+  // closed and are judged again against the good set as it is now; their links that were
+  // accepted and do not come back are reversed.
   void Rejudge(std::vector<int> clusters, StepResult* result) {
     std::vector<int> accepted_before;
     for (int g : clusters) {
@@ -611,12 +603,16 @@ struct WarmEngine<Pose>::Impl {
         return;
       }
       // With the good clusters that are inconsistent too, if any.
-      std::vector<int> suspects;
+      std::vector<std::pair<double, int>> ranked;  // (consistency index, good cluster)
       for (int g = 0; g < static_cast<int>(book->clusters.size()); ++g) {
         if (!book->clusters[g].in_good || !Within(components, g)) continue;
         double chi2;
-        if (ConsistencyIndex(g, &chi2) >= 1.0) suspects.push_back(g);
+        const double g_index = ConsistencyIndex(g, &chi2);
+        if (g_index >= 1.0) ranked.push_back({g_index, g});
       }
+      std::sort(ranked.rbegin(), ranked.rend());
+      std::vector<int> suspects;  // most inconsistent first
+      for (const auto& [unused, g] : ranked) suspects.push_back(g);
       good.Rollback();
       const double threshold = trial.dof > 0.0 ? Threshold(trial.dof) : 0.0;
       for (int e : links) {
@@ -631,12 +627,9 @@ struct WarmEngine<Pose>::Impl {
   }
 
   // Reversal (Algorithm 2 with later evidence): when a cluster falls against good clusters that
-  // are inconsistent too (the suspects), the clusters that fell against them so far (their
-  // opponents, at most kMaxChallengers, largest first) challenge them: from the good set without
-  // the suspects, each challenger and then each suspect is added if it passes the joint test. If
-  // the good set so built holds more links than the current one, it replaces it: suspects left
-  // out are reversed, challengers taken in are accepted (the largest consistent set wins, as later
-  // evidence adds up). Otherwise nothing changes.
+  // are inconsistent too (the suspects, most inconsistent first), the clusters that fell against
+  // them so far (their opponents) challenge them (Replace): first the most inconsistent suspect
+  // alone (a small wrong cluster bends the map, so true ones near it look inconsistent too).
   void Challenge(const std::vector<int>& suspects,
                  const std::vector<int>& components,
                  StepResult* result) {
@@ -661,7 +654,20 @@ struct WarmEngine<Pose>::Impl {
     if (challengers.size() > kMaxChallengers) challengers.resize(kMaxChallengers);
     for (int r : challengers) challenger_links += book->clusters[r].links.size();
     if (challenger_links <= smallest_suspect) return;
+    if (suspects.size() >= 2 && Replace({suspects.front()}, challengers, components, result)) {
+      return;
+    }
+    Replace(suspects, challengers, components, result);
+  }
 
+  // From the good set without `suspects`, each challenger and then each suspect is added if it
+  // passes the joint test. A good set so built with more links replaces the current one (true):
+  // suspects left out are reversed, challengers taken in accepted (the largest consistent set
+  // wins).
+  bool Replace(const std::vector<int>& suspects,
+               const std::vector<int>& challengers,
+               const std::vector<int>& components,
+               StepResult* result) {
     std::vector<int> before;  // the good clusters now
     size_t good_links = 0;
     for (int g = 0; g < static_cast<int>(book->clusters.size()); ++g) {
@@ -705,7 +711,7 @@ struct WarmEngine<Pose>::Impl {
       // The good set stays as it was.
       *estimate = saved;
       good.Rebuild(loops_of(before), AlignmentCap());
-      return;
+      return false;
     }
     for (int q : taken) {
       if (!book->clusters[q].in_good) Accept(q, &result->changed_loops);
@@ -717,6 +723,7 @@ struct WarmEngine<Pose>::Impl {
     for (int g : reversed) book->clusters[g].in_good = false;
     Rejudge(reversed, result);
     ++result->reversals;
+    return true;
   }
 
   const PoseGraph<Pose>* graph;
