@@ -6,6 +6,12 @@
 #include "core/optimizer.h"
 
 namespace irrr {
+namespace {
+
+// Loops linearized per covariance recovery (LinearizeEach; bounds its size: 2 x 32 poses).
+constexpr size_t kLinearizeChunk = 32;
+
+}  // namespace
 
 template <class Pose>
 struct GoodSet<Pose>::Impl {
@@ -148,6 +154,41 @@ template <class Pose>
 Eigen::MatrixXd GoodSet<Pose>::Covariance(const std::vector<int>& vertices) const {
   IRRR_CHECK(!vertices.empty());
   return impl_->SolverOfVertex(vertices.front())->Covariance(vertices);
+}
+
+template <class Pose>
+std::vector<LinearizedAddition> GoodSet<Pose>::LinearizeEach(const std::vector<int>& loops) const {
+  IRRR_CHECK(!impl_->trial_open);
+  constexpr int d = Pose::kDim;
+  const PoseGraph<Pose>& graph = *impl_->graph;
+  std::vector<LinearizedAddition> out(loops.size());
+  for (size_t first = 0; first < loops.size(); first += kLinearizeChunk) {
+    const size_t last = std::min(loops.size(), first + kLinearizeChunk);
+    std::vector<int> vertices;
+    for (size_t k = first; k < last; ++k) {
+      vertices.push_back(graph.edge(loops[k]).from);
+      vertices.push_back(graph.edge(loops[k]).to);
+    }
+    std::sort(vertices.begin(), vertices.end());
+    vertices.erase(std::unique(vertices.begin(), vertices.end()), vertices.end());
+    const Eigen::MatrixXd covariance = Covariance(vertices);
+    auto index = [&vertices](int v) {
+      return static_cast<int>(std::lower_bound(vertices.begin(), vertices.end(), v) -
+                              vertices.begin());
+    };
+    for (size_t k = first; k < last; ++k) {
+      const Edge<Pose>& edge = graph.edge(loops[k]);
+      const int i = index(edge.from);
+      const int j = index(edge.to);
+      Eigen::MatrixXd sigma(2 * d, 2 * d);
+      sigma.topLeftCorner(d, d) = covariance.block(i * d, i * d, d, d);
+      sigma.topRightCorner(d, d) = covariance.block(i * d, j * d, d, d);
+      sigma.bottomLeftCorner(d, d) = covariance.block(j * d, i * d, d, d);
+      sigma.bottomRightCorner(d, d) = covariance.block(j * d, j * d, d, d);
+      out[k] = LinearizeAddition<Pose>({&edge}, *impl_->estimate, {edge.from, edge.to}, sigma);
+    }
+  }
+  return out;
 }
 
 template <class Pose>

@@ -9,6 +9,7 @@
 
 #include "core/irrr.h"
 #include "core/optimizer.h"
+#include "core/outliers.h"
 #include "tests/synthetic_graph.h"
 
 namespace irrr {
@@ -126,6 +127,79 @@ TEMPLATE_TEST_CASE(
   const Increase<TestType> far = LinkIncrease(MakeSyntheticGraph<TestType>(noisy).graph);
   INFO("linearized " << far.linearized << ", exact " << far.exact);
   CHECK(far.linearized == Approx(far.exact).epsilon(0.05));
+}
+
+// Chi2 of the optimum with the loops `extra` added to the good set `good`, started from `x`.
+template <class Pose>
+double OptimumChi2(const PoseGraph<Pose>& graph,
+                   std::vector<char> good,
+                   const std::vector<int>& extra,
+                   std::vector<Pose> x) {
+  for (int e : extra) good[e] = 1;
+  Optimizer<Pose> optimizer;
+  const OptimizerSummary summary = optimizer.Solve(graph, good, &x);
+  REQUIRE(summary.termination == TerminationType::kConvergence);
+  return summary.final_chi2;
+}
+
+TEMPLATE_TEST_CASE("A cluster's chi2 increase is at least that of any one of its links alone",
+                   "[statistics]",
+                   Pose2,
+                   Pose3) {
+  // The bound by which the warm engine rules out a challenger from one link's statistic: more
+  // edges cannot lower the optimum's chi2. Checked on a true cluster (the last three loops) and a
+  // wrong one (three loops in a consistent group, core/outliers.h).
+  SyntheticOptions options;
+  options.num_poses = 150;
+  options.translation_sigma_m = 0.05;
+  options.rotation_sigma_rad = 0.01;
+  options.loop_probability = 0.3;
+  options.seed = 7;
+  auto synthetic = MakeSyntheticGraph<TestType>(options);
+  PoseGraph<TestType>& graph = synthetic.graph;
+  OutlierOptions wrong_options;
+  wrong_options.mode = OutlierMode::kRandomGrouped;
+  wrong_options.count = 3;
+  wrong_options.seed = 3;
+  std::vector<OutlierLink<TestType>> wrong_links;
+  REQUIRE(MakeOutliers(graph, wrong_options, &wrong_links).ok());
+  REQUIRE(wrong_links.size() == 3);
+  std::vector<int> wrong;
+  for (const auto& link : wrong_links) {
+    wrong.push_back(graph.num_edges());
+    graph.AddLoop(link.from, link.to, link.measurement, link.information, nullptr);
+  }
+  const std::vector<int>& loops = synthetic.loop_edges;
+  REQUIRE(loops.size() > 10);
+  const std::vector<int> true_cluster(loops.end() - 3, loops.end());
+
+  std::vector<char> good(graph.num_edges(), 0);
+  for (int e = 0; e < graph.num_edges(); ++e) {
+    good[e] = graph.edge(e).kind == EdgeKind::kOdometry;
+  }
+  for (auto it = loops.begin(); it != loops.end() - 3; ++it) good[*it] = 1;
+  std::vector<TestType> x = graph.initial_estimate();
+  const double base = OptimumChi2(graph, good, {}, x);
+  {
+    Optimizer<TestType> optimizer;
+    REQUIRE(optimizer.Solve(graph, good, &x).termination == TerminationType::kConvergence);
+  }
+  for (const std::vector<int>& cluster : {true_cluster, wrong}) {
+    const double increase = OptimumChi2(graph, good, cluster, x) - base;
+    double largest_alone = 0.0;
+    for (int e : cluster) {
+      const double alone = OptimumChi2(graph, good, {e}, x) - base;
+      INFO("cluster increase " << increase << ", link " << e << " alone " << alone);
+      CHECK(alone >= -1e-6);
+      CHECK(alone <= increase + 1e-6 * (1.0 + increase));
+      largest_alone = std::max(largest_alone, alone);
+    }
+    // The bound is not empty: a link alone carries a good part of its cluster's increase.
+    CHECK(largest_alone > 0.2 * increase);
+  }
+  // The wrong cluster stands far above the true one.
+  CHECK(OptimumChi2(graph, good, wrong, x) - base >
+        100.0 * (OptimumChi2(graph, good, true_cluster, x) - base));
 }
 
 TEMPLATE_TEST_CASE("The warm engine recovers a variance factor of 0.02 and of 50 within 10%",
