@@ -344,6 +344,14 @@ struct WarmEngine<Pose>::Impl {
     for (int q : candidates) {
       JudgedCluster& c = book->clusters[q];
       if (!c.in_r || c.links.empty()) continue;
+      // A lone link left of a cluster is screened as one (with the others it went by their median).
+      if (c.links.size() == 1 && good.ComponentOf(c.session_a) == good.ComponentOf(c.session_b)) {
+        Screen(q, changed);
+        if (c.links.empty()) {
+          c.in_reject = true;
+          continue;
+        }
+      }
       if (HoldIfUnsupported(q, changed)) continue;
       c.held = false;
       JointTest(q, result);
