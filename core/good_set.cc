@@ -1,6 +1,7 @@
 #include "core/good_set.h"
 
 #include <algorithm>
+#include <cmath>
 
 #include "core/local_problem.h"
 #include "core/optimizer.h"
@@ -10,6 +11,10 @@ namespace {
 
 // Loops linearized per covariance recovery (LinearizeEach; bounds its size: 2 x 32 poses).
 constexpr size_t kLinearizeChunk = 32;
+// A trial of this many loops or more that Gauss-Newton does not settle is settled by a batch
+// solve (so that a large cluster failing names its suspects); smaller ones fail, as wrong groups
+// of a few links often do, without a batch solve each.
+constexpr size_t kSettleByBatchLoops = 10;
 
 }  // namespace
 
@@ -219,8 +224,29 @@ typename GoodSet<Pose>::Trial GoodSet<Pose>::Try(const std::vector<int>& loops,
     solver.Checkpoint();
     const IncrementalSummary summary = solver.Add(loops);
     m.counters.iterations += summary.iterations;
-    if (!summary.ok) {
+    if (!summary.ok && loops.size() < kSettleByBatchLoops) {
       solver.Rollback();
+      return trial;
+    }
+    if (!summary.ok) {
+      // Gauss-Newton did not settle: the optimum by a batch solve with step control instead, in a
+      // solver of its own (as a merge's, of one component).
+      solver.Rollback();
+      std::vector<int> all_loops = loops;
+      for (int e : solver.edges()) {
+        if (graph.edge(e).kind == EdgeKind::kLoop) all_loops.push_back(e);
+      }
+      std::vector<Pose> start = *m.estimate;
+      m.trial_merged = m.Build(m.SessionsOf(components[0]), all_loops, &start);
+      if (!std::isfinite(m.trial_merged->chi2())) {
+        m.Retire(&m.trial_merged);
+        return trial;
+      }
+      m.trial_open = true;
+      m.merge_a = m.merge_b = components[0];
+      trial.ok = true;
+      trial.increase = m.trial_merged->chi2() - before;
+      trial.dof = Pose::kDim * static_cast<double>(loops.size());
       return trial;
     }
     m.trial_open = true;

@@ -67,6 +67,8 @@ class GoodSet {
   // EdgeChi2 reads the trial's optimum until Commit (which writes it into the estimate) or
   // Rollback. At most one trial at a time. Two components are brought into one frame through the
   // link whose alignment the others agree with best, each link's d^2 capped at `alignment_cap`.
+  // A trial of 10 loops or more that the incremental solver does not settle is settled by a batch
+  // solve; a smaller one is not open (ok false).
   Trial Try(const std::vector<int>& loops, double alignment_cap);
   void Commit();
   void Rollback();

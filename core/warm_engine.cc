@@ -729,10 +729,53 @@ struct WarmEngine<Pose>::Impl {
     for (int g : suspects) {
       if (std::find(taken.begin(), taken.end(), g) == taken.end()) reversed.push_back(g);
     }
+    int since = book->step;  // the earliest acceptance of a reversed cluster's link
+    for (int g : reversed) {
+      for (int e : book->clusters[g].links) since = std::min(since, book->decisions[e].step);
+    }
     for (int g : reversed) book->clusters[g].in_good = false;
+    Recover(since, reversed, components, result);
     Rejudge(reversed, result);
     ++result->reversals;
     return true;
+  }
+
+  // Recovering: links refused by the good set's tests since step `since`, while the reversed
+  // clusters bent its estimate, are judged again without them: those of each cluster (but the
+  // reversed, judged again whole) as a cluster of their own.
+  void Recover(int since,
+               const std::vector<int>& reversed,
+               const std::vector<int>& components,
+               StepResult* result) {
+    std::vector<std::pair<int, int>> refused;  // (cluster, link)
+    for (int e = 0; e < graph->num_edges(); ++e) {
+      const LoopDecision& decision = book->decisions[e];
+      if (decision.cluster < 0 || decision.step < since ||
+          (decision.state != LoopState::kRejectedJointTest &&
+           decision.state != LoopState::kRejectedLinkTest) ||
+          std::find(reversed.begin(), reversed.end(), decision.cluster) != reversed.end() ||
+          !Within(components, decision.cluster)) {
+        continue;
+      }
+      refused.push_back({decision.cluster, e});
+    }
+    std::sort(refused.begin(), refused.end());
+    std::vector<int> parts;
+    for (size_t k = 0; k < refused.size(); ++k) {
+      const int g = refused[k].first;
+      if (k == 0 || refused[k - 1].first != g) {
+        parts.push_back(book->AddCluster(book->clusters[g].session_a, book->clusters[g].session_b));
+        book->clusters[parts.back()].closed = true;
+      }
+      std::vector<int>& links = book->clusters[g].links;
+      links.erase(std::remove(links.begin(), links.end(), refused[k].second), links.end());
+      book->clusters[parts.back()].links.push_back(refused[k].second);
+      book->decisions[refused[k].second].cluster = parts.back();
+    }
+    SortLargestFirst(&parts);
+    ++rejudging;
+    for (int q : parts) Judge(q, result);
+    --rejudging;
   }
 
   const PoseGraph<Pose>* graph;
