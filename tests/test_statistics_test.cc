@@ -10,11 +10,14 @@
 #include "core/irrr.h"
 #include "core/optimizer.h"
 #include "core/outliers.h"
+#include "tests/corrupted_graph.h"
 #include "tests/synthetic_graph.h"
 
 namespace irrr {
 namespace {
 
+using testing::Corrupted;
+using testing::MakeCorrupted;
 using testing::MakeSyntheticGraph;
 using testing::SyntheticOptions;
 
@@ -155,35 +158,33 @@ TEMPLATE_TEST_CASE("A cluster's chi2 increase is at least that of any one of its
   options.rotation_sigma_rad = 0.01;
   options.loop_probability = 0.3;
   options.seed = 7;
-  auto synthetic = MakeSyntheticGraph<TestType>(options);
-  PoseGraph<TestType>& graph = synthetic.graph;
   OutlierOptions wrong_options;
   wrong_options.mode = OutlierMode::kRandomGrouped;
   wrong_options.count = 3;
   wrong_options.seed = 3;
-  std::vector<OutlierLink<TestType>> wrong_links;
-  REQUIRE(MakeOutliers(graph, wrong_options, &wrong_links).ok());
-  REQUIRE(wrong_links.size() == 3);
+  const Corrupted<TestType> corrupted = MakeCorrupted<TestType>(options, wrong_options);
+  const PoseGraph<TestType>& graph = corrupted.graph;
+  std::vector<int> loops;
   std::vector<int> wrong;
-  for (const auto& link : wrong_links) {
-    wrong.push_back(graph.num_edges());
-    graph.AddLoop(link.from, link.to, link.measurement, link.information, nullptr);
+  for (int e = 0; e < graph.num_edges(); ++e) {
+    if (graph.edge(e).kind != EdgeKind::kLoop) continue;
+    (corrupted.is_outlier[e] ? wrong : loops).push_back(e);
   }
-  const std::vector<int>& loops = synthetic.loop_edges;
+  REQUIRE(wrong.size() == 3);
   REQUIRE(loops.size() > 10);
   const std::vector<int> true_cluster(loops.end() - 3, loops.end());
 
+  // The good set: odometry and every true loop but the cluster's, at its optimum.
   std::vector<char> good(graph.num_edges(), 0);
   for (int e = 0; e < graph.num_edges(); ++e) {
     good[e] = graph.edge(e).kind == EdgeKind::kOdometry;
   }
   for (auto it = loops.begin(); it != loops.end() - 3; ++it) good[*it] = 1;
   std::vector<TestType> x = graph.initial_estimate();
-  const double base = OptimumChi2(graph, good, {}, x);
-  {
-    Optimizer<TestType> optimizer;
-    REQUIRE(optimizer.Solve(graph, good, &x).termination == TerminationType::kConvergence);
-  }
+  Optimizer<TestType> optimizer;
+  const OptimizerSummary solved = optimizer.Solve(graph, good, &x);
+  REQUIRE(solved.termination == TerminationType::kConvergence);
+  const double base = solved.final_chi2;
   for (const std::vector<int>& cluster : {true_cluster, wrong}) {
     const double increase = OptimumChi2(graph, good, cluster, x) - base;
     double largest_alone = 0.0;
