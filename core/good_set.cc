@@ -224,14 +224,11 @@ typename GoodSet<Pose>::Trial GoodSet<Pose>::Try(const std::vector<int>& loops,
     solver.Checkpoint();
     const IncrementalSummary summary = solver.Add(loops);
     m.counters.iterations += summary.iterations;
-    if (!summary.ok && loops.size() < kSettleByBatchLoops) {
-      solver.Rollback();
-      return trial;
-    }
     if (!summary.ok) {
+      solver.Rollback();
+      if (loops.size() < kSettleByBatchLoops) return trial;
       // Gauss-Newton did not settle: the optimum by a batch solve with step control instead, in a
       // solver of its own (as a merge's, of one component).
-      solver.Rollback();
       std::vector<int> all_loops = loops;
       for (int e : solver.edges()) {
         if (graph.edge(e).kind == EdgeKind::kLoop) all_loops.push_back(e);

@@ -1,0 +1,269 @@
+#ifndef IRRR_CORE_WARM_ENGINE_IMPL_H_
+#define IRRR_CORE_WARM_ENGINE_IMPL_H_
+
+// The warm engine's state and steps, shared by its two source files: core/warm_engine.cc judges
+// a cluster (the variance factor, the screen, Algorithm 1, the joint test and its splits);
+// core/warm_reversal.cc reverses good clusters that later evidence outvotes and recovers what
+// they made the tests refuse. Internal to core: include only from those two files.
+
+#include <algorithm>
+#include <limits>
+#include <vector>
+
+#include "core/decisions.h"
+#include "core/good_set.h"
+#include "core/intra_cluster.h"
+#include "core/local_problem.h"
+#include "core/pairwise_consistency.h"
+#include "core/test_statistics.h"
+#include "core/warm_engine.h"
+
+namespace irrr {
+
+template <class Pose>
+struct WarmEngine<Pose>::Impl {
+  static constexpr int d = Pose::kDim;
+  // A link whose linearized statistic is kClusterMargin times its cluster's median statistic
+  // (and far off in absolute terms) is rejected by the screen; a challenger with a link whose
+  // statistic alone is kClusterMargin times the cluster's threshold is not tried (MayPass;
+  // nonlinear over linearized increase: 0.5-3.5 on Manhattan and Intel).
+  static constexpr double kClusterMargin = 20.0;
+
+  Impl(const PoseGraph<Pose>* g,
+       const IrrrOptions* o,
+       DecisionBook* b,
+       std::vector<Pose>* e,
+       const std::vector<Pose>* dead_reckoning)
+      : graph(g),
+        options(o),
+        book(b),
+        estimate(e),
+        problems(g, dead_reckoning, o->optimizer),
+        pairwise(g, dead_reckoning),
+        good(g, e, IncrementalSolverOptions()) {}
+
+  // ---- thresholds and the variance factor -------------------------------------------------
+
+  TestThresholds Thresholds() const {
+    return TestThresholds{
+        options->alpha, test_variance > 0.0 ? test_variance : variance, variance_dof};
+  }
+  double Threshold(double dof) const { return Thresholds().Of(dof); }
+  double LinkThreshold() const { return Threshold(d); }
+  double AlignmentCap() const { return kAlignmentCap * LinkThreshold(); }
+
+  struct Scale {
+    bool known = false;
+    double variance = 1.0;  // the factor the tests use
+    double estimate = 1.0;  // the factor the data gave (before the cap at 1)
+    double dof = std::numeric_limits<double>::infinity();
+  };
+
+  // A fixed factor from the options (known exactly); else the dof-weighted median over Algorithm
+  // 1's clusters of two or more links that are not rejected (robust to a minority of wrong ones),
+  // known once enough redundancy is seen; never above 1.
+  Scale CurrentScale() const;
+
+  void EstimateVarianceFactor();
+
+  // Before any factor is known, the redundancy of cluster q on its own scale: Algorithm 1's
+  // optimum, its links failing the link test at the scale they imply set aside and the rest solved
+  // again, until none fails (a trimmed estimate: one wrong link among many true ones dominates the
+  // cluster's chi2 and stands out against it). The cluster itself is unchanged.
+  void Calibrate(int q);
+
+  // ---- the good set --------------------------------------------------------------------------
+
+  std::vector<int> GoodLoops() const {
+    std::vector<int> loops;
+    for (const JudgedCluster& c : book->clusters) {
+      if (c.in_good) loops.insert(loops.end(), c.links.begin(), c.links.end());
+    }
+    return loops;
+  }
+
+  int GoodLinks() const {
+    int n = 0;
+    for (const JudgedCluster& c : book->clusters)
+      n += c.in_good ? static_cast<int>(c.links.size()) : 0;
+    return n;
+  }
+
+  // Whether cluster q lies within the components `components`.
+  bool Within(const std::vector<int>& components, int q) const {
+    const JudgedCluster& c = book->clusters[q];
+    auto in = [&](int session) {
+      return std::find(components.begin(), components.end(), good.ComponentOf(session)) !=
+             components.end();
+    };
+    return in(c.session_a) && in(c.session_b);
+  }
+
+  // The clusters judged by no test yet (waiting for a variance factor or for support), in
+  // closing order.
+  std::vector<int> Waiting() const {
+    std::vector<int> waiting;
+    for (int q = 0; q < static_cast<int>(book->clusters.size()); ++q) {
+      const JudgedCluster& c = book->clusters[q];
+      if (c.closed && !c.in_r && !c.in_reject && !c.links.empty()) waiting.push_back(q);
+    }
+    return waiting;
+  }
+
+  void SortLargestFirst(std::vector<int>* clusters) const {
+    std::stable_sort(clusters->begin(), clusters->end(), [this](int a, int b) {
+      return book->clusters[a].links.size() > book->clusters[b].links.size();
+    });
+  }
+
+  // ---- one step ------------------------------------------------------------------------------
+
+  void Step(int k, StepResult* result);
+
+  int Solves() const {
+    return problems.solves() + static_cast<int>(good.counters().trials + good.counters().rebuilds);
+  }
+  int Iterations() const {
+    return problems.iterations() + static_cast<int>(good.counters().iterations);
+  }
+
+  // The whole pipeline for one cluster: screen, Algorithm 1, joint test (with its splits).
+  void Judge(int k, StepResult* result);
+
+  // The screen: links far off at the current optimum leave cluster q (inside one component).
+  void Screen(int q, std::vector<int>* changed);
+
+  // Each link's linearized chi2 increase alone at the current optimum (its ends in one
+  // component); its redundancy number goes to `control`.
+  std::vector<double> LinkStatistics(const std::vector<int>& links);
+
+  // A cluster of one link (none of its own to support it) whose end poses the good set knows far
+  // worse than the link measures them (redundancy number below kMinRedundancy, or in two
+  // components): the link would bend the estimate to fit whatever it says, so no test can tell
+  // it wrong.
+  bool Unsupported(int q) const;
+
+  // An unsupported cluster waits, as judged by nothing yet, for a good set that can check it.
+  bool HoldIfUnsupported(int q, std::vector<int>* changed);
+
+  // The components a cluster touches.
+  std::vector<int> ComponentsOf(int q) const {
+    const JudgedCluster& c = book->clusters[q];
+    std::vector<int> components = {good.ComponentOf(c.session_a), good.ComponentOf(c.session_b)};
+    if (components[0] == components[1]) components.pop_back();
+    return components;
+  }
+
+  double ConsistencyIndex(int q, double* chi2) const {
+    *chi2 = 0.0;
+    for (int e : book->clusters[q].links) *chi2 += good.EdgeChi2(e);
+    return *chi2 / Threshold(d * static_cast<double>(book->clusters[q].links.size()));
+  }
+
+  // Whether cluster q passes at the open trial's optimum: its consistency index, and each link.
+  bool Consistent(int q) const {
+    double chi2;
+    if (ConsistencyIndex(q, &chi2) >= 1.0) return false;
+    for (int e : book->clusters[q].links) {
+      if (!(good.EdgeChi2(e) < LinkThreshold())) return false;
+    }
+    return true;
+  }
+
+  // The larger of the global factor and cluster q's own (kOwnFactorMinimumDof of redundancy);
+  // 0 (the global factor) otherwise. At most kOwnFactorRatio times the global factor and 1: wrong
+  // links raise a cluster's own factor (Sphere2500 + 1000 random: to 6.9, seven wrong loops in).
+  double OwnVariance(int q) const;
+
+  // The parts a cluster failing the joint test is judged again as: each run of two links or more
+  // (links whose ends lie within kRunGap poses of another's ends), in the order of its first
+  // link, and the lone links together (on their own, lone wrong links a few poses long are hard to
+  // tell from true ones).
+  std::vector<std::vector<int>> Runs(const std::vector<int>& links) const;
+
+  // Cluster q, inconsistent with the good set as a whole, judged again as its runs: the largest
+  // stays q, each other becomes a cluster of its own; each is joint-tested on its own, largest
+  // first (a run of one link the good set cannot check waits, as in Judge).
+  void JudgeRuns(int q, std::vector<std::vector<int>> runs, StepResult* result);
+
+  bool IncreasePasses(const typename GoodSet<Pose>::Trial& trial) const {
+    return trial.ok && (trial.dof <= 0.0 || trial.increase < Threshold(trial.dof));
+  }
+
+  void Accept(int q, std::vector<int>* changed);
+
+  void JointTest(int q, StepResult* result);
+
+  void JointTestAtScale(int q, StepResult* result);
+
+  // Links `links` of cluster q leave it for a new closed cluster between the same sessions
+  // (returned), their decisions with them.
+  int SplitOff(int q, const std::vector<int>& links);
+
+  // ---- Algorithm 2's reversal and recovery (core/warm_reversal.cc) -------------------------
+
+  // Reversing: good clusters accepted under a variance factor more than kRevalidateRatio times
+  // the current one (early, on little evidence of the noise) leave the good set together and are
+  // judged again at the current factor (Rejudge).
+  void Revalidate(StepResult* result);
+
+  // Recovering: clusters that have left the good set get back every link they held when they
+  // closed and are judged again against the good set as it is now; their links that were
+  // accepted and do not come back are reversed.
+  void Rejudge(std::vector<int> clusters, StepResult* result);
+
+  // Reversal (Algorithm 2 with later evidence): when a cluster falls against good clusters that
+  // are inconsistent too (the suspects, most inconsistent first), the clusters that fell against
+  // them so far (their opponents) challenge them (Replace): first the most inconsistent suspect
+  // alone (a small wrong cluster bends the map, so true ones near it look inconsistent too).
+  void Challenge(const std::vector<int>& suspects,
+                 const std::vector<int>& components,
+                 StepResult* result);
+
+  // From the good set without `suspects`, each challenger and then each suspect is added if it
+  // passes the joint test. A good set so built with more links replaces the current one (true):
+  // suspects left out are reversed, challengers taken in accepted (the largest consistent set
+  // wins).
+  bool Replace(const std::vector<int>& suspects,
+               const std::vector<int>& challengers,
+               const std::vector<int>& components,
+               StepResult* result);
+
+  // Recovering: links refused by the good set's tests since step `since`, while the reversed
+  // clusters bent its estimate, are judged again without them: those of each cluster (but the
+  // reversed, judged again whole) as a cluster of their own.
+  void Recover(int since,
+               const std::vector<int>& reversed,
+               const std::vector<int>& components,
+               StepResult* result);
+
+  // Whether cluster q could pass the joint test against the good set now. Its chi2 increase is
+  // at least that of any one of its links alone (more edges cannot lower the optimum's chi2), so
+  // a link whose linearized statistic is kClusterMargin times the cluster's threshold rules it
+  // out without a nonlinear trial. Clusters between two components are not ruled out here. Like
+  // any screen, it leaves its links' redundancy numbers in `control`.
+  bool MayPass(int q);
+
+  // ---- state ---------------------------------------------------------------------------------
+
+  const PoseGraph<Pose>* graph;
+  const IrrrOptions* options;
+  DecisionBook* book;
+  std::vector<Pose>* estimate;
+  LocalProblems<Pose> problems;
+  PairwiseConsistency<Pose> pairwise;
+  GoodSet<Pose> good;
+  double variance = 1.0;  // the factor of the tests (the estimate, at most 1)
+  // A cluster with redundancy enough of its own is judged at a larger factor (JointTest); 0: none.
+  double test_variance = 0.0;
+  double variance_estimate = 1.0;
+  double variance_dof = std::numeric_limits<double>::infinity();
+  bool scale_known = false;
+  bool released = false;
+  int rejudging = 0;            // Rejudge under way (no challenge starts inside one)
+  std::vector<double> control;  // per loop edge: its redundancy number at its last screen
+};
+
+}  // namespace irrr
+
+#endif  // IRRR_CORE_WARM_ENGINE_IMPL_H_

@@ -1,0 +1,223 @@
+// Algorithm 2's reversal with later evidence, and the recovery after it: the part of the warm
+// engine (core/warm_engine_impl.h) that takes good clusters out of the good set again.
+
+#include <algorithm>
+#include <limits>
+
+#include "core/warm_engine_impl.h"
+
+namespace irrr {
+namespace {
+
+// A good cluster accepted under a factor more than this many times today's is judged again.
+constexpr double kRevalidateRatio = 2.0;
+// Clusters that challenge good ones at once (Challenge), largest first.
+constexpr size_t kMaxChallengers = 8;
+
+}  // namespace
+
+template <class Pose>
+void WarmEngine<Pose>::Impl::Revalidate(StepResult* result) {
+  std::vector<int> suspects;
+  for (int g = 0; g < static_cast<int>(book->clusters.size()); ++g) {
+    const JudgedCluster& c = book->clusters[g];
+    if (c.in_good && c.accepted_variance > kRevalidateRatio * variance) suspects.push_back(g);
+  }
+  if (suspects.empty()) return;
+  for (int g : suspects) book->clusters[g].in_good = false;
+  good.Rebuild(GoodLoops(), AlignmentCap());
+  Rejudge(suspects, result);
+  result->reversals += static_cast<int>(suspects.size());
+}
+
+template <class Pose>
+void WarmEngine<Pose>::Impl::Rejudge(std::vector<int> clusters, StepResult* result) {
+  std::vector<int> accepted_before;
+  for (int g : clusters) {
+    JudgedCluster& c = book->clusters[g];
+    c.in_good = false;
+    c.in_r = false;
+    c.in_reject = false;
+    c.links.clear();
+  }
+  for (int e = 0; e < graph->num_edges(); ++e) {
+    const LoopDecision& decision = book->decisions[e];
+    if (decision.cluster < 0 ||
+        std::find(clusters.begin(), clusters.end(), decision.cluster) == clusters.end()) {
+      continue;
+    }
+    book->clusters[decision.cluster].links.push_back(e);
+    if (decision.state == LoopState::kAccepted) accepted_before.push_back(e);
+  }
+  SortLargestFirst(&clusters);
+  ++rejudging;
+  for (int g : clusters) Judge(g, result);
+  --rejudging;
+  for (int e : accepted_before) {
+    const LoopDecision& decision = book->decisions[e];
+    if (decision.state != LoopState::kAccepted) {
+      book->Set(e, LoopState::kReversed, decision.chi2, decision.threshold, &result->changed_loops);
+    }
+  }
+}
+
+template <class Pose>
+void WarmEngine<Pose>::Impl::Challenge(const std::vector<int>& suspects,
+                                       const std::vector<int>& components,
+                                       StepResult* result) {
+  if (rejudging > 0) return;  // one challenge at a time: what it re-judges does not challenge
+  std::vector<int> challengers;
+  size_t challenger_links = 0;
+  size_t smallest_suspect = std::numeric_limits<size_t>::max();
+  for (int g : suspects) {
+    smallest_suspect = std::min(smallest_suspect, book->clusters[g].links.size());
+    for (int r : book->clusters[g].opponents) {
+      const JudgedCluster& c = book->clusters[r];
+      // A lone link cannot outvote anything: wrong ones fail against a good cluster one after
+      // the other, each bending it, and none agrees with another.
+      if (!c.in_reject || c.in_good || c.links.size() < 2 || !Within(components, r) ||
+          std::find(challengers.begin(), challengers.end(), r) != challengers.end()) {
+        continue;
+      }
+      challengers.push_back(r);
+    }
+  }
+  SortLargestFirst(&challengers);
+  if (challengers.size() > kMaxChallengers) challengers.resize(kMaxChallengers);
+  for (int r : challengers) challenger_links += book->clusters[r].links.size();
+  if (challenger_links <= smallest_suspect) return;
+  if (suspects.size() >= 2 && Replace({suspects.front()}, challengers, components, result)) {
+    return;
+  }
+  Replace(suspects, challengers, components, result);
+}
+
+template <class Pose>
+bool WarmEngine<Pose>::Impl::Replace(const std::vector<int>& suspects,
+                                     const std::vector<int>& challengers,
+                                     const std::vector<int>& components,
+                                     StepResult* result) {
+  std::vector<int> before;  // the good clusters now
+  size_t good_links = 0;
+  for (int g = 0; g < static_cast<int>(book->clusters.size()); ++g) {
+    if (!book->clusters[g].in_good) continue;
+    before.push_back(g);
+    if (Within(components, g)) good_links += book->clusters[g].links.size();
+  }
+  std::vector<int> base;
+  size_t base_links = 0;
+  for (int g : before) {
+    if (std::find(suspects.begin(), suspects.end(), g) != suspects.end()) continue;
+    base.push_back(g);
+    if (Within(components, g)) base_links += book->clusters[g].links.size();
+  }
+  const std::vector<Pose> saved = *estimate;
+  auto loops_of = [this](const std::vector<int>& clusters) {
+    std::vector<int> loops;
+    for (int g : clusters) {
+      loops.insert(loops.end(), book->clusters[g].links.begin(), book->clusters[g].links.end());
+    }
+    return loops;
+  };
+  good.Rebuild(loops_of(base), AlignmentCap());
+  std::vector<int> taken;
+  auto take_if_passes = [&](int q) {
+    const typename GoodSet<Pose>::Trial trial = good.Try(book->clusters[q].links, AlignmentCap());
+    if (!trial.ok) return;
+    if (!IncreasePasses(trial) || !Consistent(q)) {
+      good.Rollback();
+      return;
+    }
+    good.Commit();
+    taken.push_back(q);
+    base_links += book->clusters[q].links.size();
+  };
+  for (int r : challengers) {
+    if (MayPass(r)) take_if_passes(r);
+  }
+  // Without a challenger taken, the suspects taken back cannot make the good set larger.
+  if (!taken.empty()) {
+    std::vector<int> sorted_suspects = suspects;
+    SortLargestFirst(&sorted_suspects);
+    for (int g : sorted_suspects) take_if_passes(g);
+  }
+  if (base_links <= good_links) {
+    // The good set stays as it was.
+    *estimate = saved;
+    good.Rebuild(loops_of(before), AlignmentCap());
+    return false;
+  }
+  for (int q : taken) {
+    if (!book->clusters[q].in_good) Accept(q, &result->changed_loops);
+  }
+  std::vector<int> reversed;
+  for (int g : suspects) {
+    if (std::find(taken.begin(), taken.end(), g) == taken.end()) reversed.push_back(g);
+  }
+  int since = book->step;  // the earliest acceptance of a reversed cluster's link
+  for (int g : reversed) {
+    for (int e : book->clusters[g].links) since = std::min(since, book->decisions[e].step);
+  }
+  for (int g : reversed) book->clusters[g].in_good = false;
+  Recover(since, reversed, components, result);
+  Rejudge(reversed, result);
+  ++result->reversals;
+  return true;
+}
+
+template <class Pose>
+bool WarmEngine<Pose>::Impl::MayPass(int q) {
+  const JudgedCluster& c = book->clusters[q];
+  if (good.ComponentOf(c.session_a) != good.ComponentOf(c.session_b)) return true;
+  const std::vector<double> statistic = LinkStatistics(c.links);
+  const double worst = *std::max_element(statistic.begin(), statistic.end());
+  return worst <= kClusterMargin * Threshold(static_cast<double>(d * c.links.size()));
+}
+
+template <class Pose>
+void WarmEngine<Pose>::Impl::Recover(int since,
+                                     const std::vector<int>& reversed,
+                                     const std::vector<int>& components,
+                                     StepResult* result) {
+  std::vector<std::pair<int, int>> refused;  // (cluster, link)
+  for (int e = 0; e < graph->num_edges(); ++e) {
+    const LoopDecision& decision = book->decisions[e];
+    if (decision.cluster < 0 || decision.step < since ||
+        (decision.state != LoopState::kRejectedJointTest &&
+         decision.state != LoopState::kRejectedLinkTest) ||
+        std::find(reversed.begin(), reversed.end(), decision.cluster) != reversed.end() ||
+        !Within(components, decision.cluster)) {
+      continue;
+    }
+    refused.push_back({decision.cluster, e});
+  }
+  std::sort(refused.begin(), refused.end());
+  std::vector<int> parts;
+  for (size_t k = 0; k < refused.size();) {
+    const int g = refused[k].first;
+    std::vector<int> links;
+    for (; k < refused.size() && refused[k].first == g; ++k) links.push_back(refused[k].second);
+    parts.push_back(SplitOff(g, links));
+  }
+  SortLargestFirst(&parts);
+  ++rejudging;
+  for (int q : parts) Judge(q, result);
+  --rejudging;
+}
+
+// Judge, JointTest and the rest are instantiated with the engine (core/warm_engine.cc).
+#define IRRR_INSTANTIATE_REVERSAL(Pose)                                                        \
+  template void WarmEngine<Pose>::Impl::Revalidate(StepResult*);                               \
+  template void WarmEngine<Pose>::Impl::Rejudge(std::vector<int>, StepResult*);                \
+  template void WarmEngine<Pose>::Impl::Challenge(                                             \
+      const std::vector<int>&, const std::vector<int>&, StepResult*);                          \
+  template bool WarmEngine<Pose>::Impl::Replace(                                               \
+      const std::vector<int>&, const std::vector<int>&, const std::vector<int>&, StepResult*); \
+  template bool WarmEngine<Pose>::Impl::MayPass(int);                                          \
+  template void WarmEngine<Pose>::Impl::Recover(                                               \
+      int, const std::vector<int>&, const std::vector<int>&, StepResult*);
+IRRR_INSTANTIATE_REVERSAL(Pose2)
+IRRR_INSTANTIATE_REVERSAL(Pose3)
+#undef IRRR_INSTANTIATE_REVERSAL
+
+}  // namespace irrr
