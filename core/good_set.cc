@@ -197,6 +197,59 @@ std::vector<LinearizedAddition> GoodSet<Pose>::LinearizeEach(const std::vector<i
 }
 
 template <class Pose>
+std::vector<double> GoodSet<Pose>::LinearizeRemovals(
+    const std::vector<std::vector<int>>& groups) const {
+  const PoseGraph<Pose>& graph = *impl_->graph;
+  std::vector<Pose> at = *impl_->estimate;  // the open trial's poses are written in below
+  std::vector<double> out(groups.size());
+  for (size_t first = 0; first < groups.size();) {
+    // Groups of at most kLinearizeChunk loops together (a larger one alone) share one recovery.
+    size_t last = first;
+    size_t loops = 0;
+    std::vector<int> vertices;
+    while (last < groups.size() &&
+           (last == first || loops + groups[last].size() <= kLinearizeChunk)) {
+      for (int e : groups[last]) {
+        vertices.push_back(graph.edge(e).from);
+        vertices.push_back(graph.edge(e).to);
+      }
+      loops += groups[last].size();
+      ++last;
+    }
+    std::sort(vertices.begin(), vertices.end());
+    vertices.erase(std::unique(vertices.begin(), vertices.end()), vertices.end());
+    const Eigen::MatrixXd covariance = Covariance(vertices);
+    for (int v : vertices) at[v] = Estimate(v);
+    for (size_t g = first; g < last; ++g) {
+      std::vector<const Edge<Pose>*> edges;
+      std::vector<int> ends;
+      for (int e : groups[g]) {
+        edges.push_back(&graph.edge(e));
+        ends.push_back(graph.edge(e).from);
+        ends.push_back(graph.edge(e).to);
+      }
+      std::sort(ends.begin(), ends.end());
+      ends.erase(std::unique(ends.begin(), ends.end()), ends.end());
+      std::vector<int> index;
+      for (int v : ends) {
+        index.push_back(static_cast<int>(std::lower_bound(vertices.begin(), vertices.end(), v) -
+                                         vertices.begin()));
+      }
+      constexpr int d = Pose::kDim;
+      Eigen::MatrixXd sigma(d * ends.size(), d * ends.size());
+      for (size_t a = 0; a < ends.size(); ++a) {
+        for (size_t b = 0; b < ends.size(); ++b) {
+          sigma.block(a * d, b * d, d, d) = covariance.block(index[a] * d, index[b] * d, d, d);
+        }
+      }
+      out[g] = LinearizeRemoval<Pose>(edges, at, ends, sigma);
+    }
+    first = last;
+  }
+  return out;
+}
+
+template <class Pose>
 const Pose& GoodSet<Pose>::Estimate(int vertex) const {
   return impl_->SolverOfVertex(vertex)->estimate(vertex);
 }

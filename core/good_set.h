@@ -53,6 +53,11 @@ class GoodSet {
   // from the factorization, a few sparse solves per 32 loops. Not during a trial.
   std::vector<LinearizedAddition> LinearizeEach(const std::vector<int>& loops) const;
 
+  // For each group of loops (all in the good set, or in the open trial, in one component): the
+  // chi2 its optimum would lose without them, to first order (LinearizeRemoval), at the estimate
+  // (the open trial's, during one).
+  std::vector<double> LinearizeRemovals(const std::vector<std::vector<int>>& groups) const;
+
   // A pose of the estimate (of the open trial's, during one).
   const Pose& Estimate(int vertex) const;
 

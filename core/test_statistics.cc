@@ -43,11 +43,16 @@ double RobustVarianceFactor(const std::vector<RedundancySample>& samples) {
   return ratios.back().first;
 }
 
+namespace {
+
+// r' S^-1 r and tr(C S^-1) / rows with S = C + sign * J Sigma J' (LinearizeAddition: +1;
+// LinearizeRemoval: -1).
 template <class Pose>
-LinearizedAddition LinearizeAddition(const std::vector<const Edge<Pose>*>& edges,
-                                     const std::vector<Pose>& estimate,
-                                     const std::vector<int>& vertices,
-                                     const Eigen::MatrixXd& covariance) {
+LinearizedAddition Linearize(const std::vector<const Edge<Pose>*>& edges,
+                             const std::vector<Pose>& estimate,
+                             const std::vector<int>& vertices,
+                             const Eigen::MatrixXd& covariance,
+                             double sign) {
   constexpr int d = Pose::kDim;
   const int n = static_cast<int>(edges.size());
   const int m = static_cast<int>(vertices.size());
@@ -70,7 +75,7 @@ LinearizedAddition LinearizeAddition(const std::vector<const Edge<Pose>*>& edges
     J.block<d, d>(k * d, column_of(edge.to)) += J_to;
     C.block<d, d>(k * d, k * d) = edge.information.inverse();
   }
-  const Eigen::MatrixXd S = C + J * covariance * J.transpose();
+  const Eigen::MatrixXd S = C + sign * (J * covariance * J.transpose());
   const Eigen::LLT<Eigen::MatrixXd> llt(0.5 * (S + S.transpose()));
   LinearizedAddition out;
   if (llt.info() != Eigen::Success) {
@@ -82,6 +87,24 @@ LinearizedAddition LinearizeAddition(const std::vector<const Edge<Pose>*>& edges
   return out;
 }
 
+}  // namespace
+
+template <class Pose>
+LinearizedAddition LinearizeAddition(const std::vector<const Edge<Pose>*>& edges,
+                                     const std::vector<Pose>& estimate,
+                                     const std::vector<int>& vertices,
+                                     const Eigen::MatrixXd& covariance) {
+  return Linearize(edges, estimate, vertices, covariance, 1.0);
+}
+
+template <class Pose>
+double LinearizeRemoval(const std::vector<const Edge<Pose>*>& edges,
+                        const std::vector<Pose>& estimate,
+                        const std::vector<int>& vertices,
+                        const Eigen::MatrixXd& covariance) {
+  return Linearize(edges, estimate, vertices, covariance, -1.0).chi2_increase;
+}
+
 template LinearizedAddition LinearizeAddition<Pose2>(const std::vector<const Edge<Pose2>*>&,
                                                      const std::vector<Pose2>&,
                                                      const std::vector<int>&,
@@ -90,5 +113,14 @@ template LinearizedAddition LinearizeAddition<Pose3>(const std::vector<const Edg
                                                      const std::vector<Pose3>&,
                                                      const std::vector<int>&,
                                                      const Eigen::MatrixXd&);
+
+template double LinearizeRemoval<Pose2>(const std::vector<const Edge<Pose2>*>&,
+                                        const std::vector<Pose2>&,
+                                        const std::vector<int>&,
+                                        const Eigen::MatrixXd&);
+template double LinearizeRemoval<Pose3>(const std::vector<const Edge<Pose3>*>&,
+                                        const std::vector<Pose3>&,
+                                        const std::vector<int>&,
+                                        const Eigen::MatrixXd&);
 
 }  // namespace irrr

@@ -83,6 +83,18 @@ LinearizedAddition LinearizeAddition(const std::vector<const Edge<Pose>*>& edges
                                      const std::vector<int>& vertices,
                                      const Eigen::MatrixXd& covariance);
 
+// Removing `edges` from a least-squares problem whose optimum with them is `estimate`, to first
+// order: r' S^-1 r with S = C - J Sigma J', Sigma the poses' covariance with the edges in. The
+// chi2 the optimum loses without them (exact on a linear-Gaussian problem): Baarda's w-test of
+// a group of observations. A group the rest of the problem checks poorly has a small residual
+// and a small S: its error shows in the other edges, and this statistic finds it there. NaN when
+// S is not positive definite (the edges alone determine a pose).
+template <class Pose>
+double LinearizeRemoval(const std::vector<const Edge<Pose>*>& edges,
+                        const std::vector<Pose>& estimate,
+                        const std::vector<int>& vertices,
+                        const Eigen::MatrixXd& covariance);
+
 }  // namespace irrr
 
 #endif  // IRRR_CORE_TEST_STATISTICS_H_

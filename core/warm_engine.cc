@@ -414,6 +414,7 @@ void WarmEngine<Pose>::Impl::JointTestAtScale(int q, StepResult* result) {
       const double g_index = ConsistencyIndex(g, &chi2);
       if (g_index >= 1.0) ranked.push_back({g_index, g});
     }
+    if (ranked.empty()) ranked = BendingClusters(q, components);
     std::sort(ranked.rbegin(), ranked.rend());
     std::vector<int> suspects;  // most inconsistent first
     for (const auto& [unused, g] : ranked) suspects.push_back(g);
@@ -428,6 +429,29 @@ void WarmEngine<Pose>::Impl::JointTestAtScale(int q, StepResult* result) {
     return;
   }
   book->clusters[q].in_reject = true;
+}
+
+template <class Pose>
+std::vector<std::pair<double, int>> WarmEngine<Pose>::Impl::BendingClusters(
+    int q, const std::vector<int>& components) const {
+  std::vector<std::pair<double, int>> ranked;
+  const size_t size = book->clusters[q].links.size();
+  if (size < 2) return ranked;
+  std::vector<int> smaller;
+  std::vector<std::vector<int>> groups;
+  for (int g = 0; g < static_cast<int>(book->clusters.size()); ++g) {
+    const JudgedCluster& c = book->clusters[g];
+    if (!c.in_good || c.links.size() >= size || !Within(components, g)) continue;
+    smaller.push_back(g);
+    groups.push_back(c.links);
+  }
+  if (smaller.empty()) return ranked;
+  const std::vector<double> removal = good.LinearizeRemovals(groups);
+  for (size_t k = 0; k < smaller.size(); ++k) {
+    const double index = removal[k] / Threshold(d * static_cast<double>(groups[k].size()));
+    if (index >= 1.0) ranked.push_back({index, smaller[k]});
+  }
+  return ranked;
 }
 
 template <class Pose>

@@ -196,6 +196,14 @@ struct WarmEngine<Pose>::Impl {
 
   void JointTestAtScale(int q, StepResult* result);
 
+  // When no good cluster is inconsistent at the open trial of cluster q (of two links or more)
+  // that failed the joint test: the smaller good clusters whose removal would lower the trial's
+  // chi2 by more than their threshold (LinearizeRemovals), with that ratio as their index. A
+  // wrong group accepted while only odometry related its ends fits its links and bends the
+  // odometry between them: the error shows there, not in its own residuals.
+  std::vector<std::pair<double, int>> BendingClusters(int q,
+                                                      const std::vector<int>& components) const;
+
   // Links `links` of cluster q leave it for a new closed cluster between the same sessions
   // (returned), their decisions with them.
   int SplitOff(int q, const std::vector<int>& links);

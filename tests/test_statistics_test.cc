@@ -60,6 +60,7 @@ struct Increase {
   double exact = 0.0;
   double redundancy = 0.0;  // the screen's redundancy number of the link
   double hat = 0.0;         // tr(J Sigma_joint J' Omega) / d at the joint optimum
+  double removal = 0.0;     // the link's linearized removal at the joint optimum
 };
 
 template <class Pose>
@@ -98,11 +99,13 @@ Increase<Pose> LinkIncrease(const PoseGraph<Pose>& graph) {
   Eigen::MatrixXd J(Pose::kDim, 2 * Pose::kDim);
   J << J_from, J_to;
   out.hat = (J * covariance * J.transpose() * edge.information).trace() / Pose::kDim;
+  out.removal = LinearizeRemoval<Pose>({&edge}, x, {edge.from, edge.to}, covariance);
   return out;
 }
 
 TEMPLATE_TEST_CASE(
-    "The linearized screen equals the chi2 increase and one minus the leverage on a linear graph",
+    "On a linear graph the linearized screen and removal equal the chi2 increase, and the "
+    "redundancy one minus the leverage",
     "[statistics]",
     Pose2,
     Pose3) {
@@ -123,6 +126,9 @@ TEMPLATE_TEST_CASE(
   CHECK(near.redundancy > 0.05);
   CHECK(near.redundancy < 0.95);
   CHECK(near.redundancy == Approx(1.0 - near.hat).epsilon(1e-5));
+  // Taken out again at the joint optimum, the link gives back exactly what it added.
+  INFO("removal " << near.removal);
+  CHECK(near.removal == Approx(near.exact).epsilon(1e-5));
 
   // With rotation noise of 0.01 rad it is an approximation, still within a few percent.
   SyntheticOptions noisy = linear;
