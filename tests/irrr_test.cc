@@ -409,18 +409,23 @@ TEST_CASE("A lone loop the estimate cannot check waits; one it can check is judg
   CHECK(decisions[long_edge].state == LoopState::kPending);
 }
 
-TEST_CASE("A wrong group that bent the map while only odometry checked it is reversed", "[irrr]") {
+TEST_CASE(
+    "A wrong group that bent the map while only odometry checked it is reversed, and what it made "
+    "the tests refuse is recovered",
+    "[irrr]") {
   // Two laps of a circle, noiseless. On the second lap a group of 3 wrong loops closes first (5 m
-  // off, checked only by a lap of odometry: it passes, and bends the odometry that follows), then
-  // 20 poses later a true cluster of 10 loops. The true cluster fails against the bend; the
-  // group's own residuals stay small (the odometry took the error), so only its removal
-  // statistic names it.
+  // off, checked only by a lap of odometry: it passes, and bends the odometry that follows); 10
+  // poses later a true loop alone, which fails against the bend (and, alone, cannot challenge
+  // anything); 10 poses later a true cluster of 10 loops, which fails too. The group's own
+  // residuals stay small (the odometry took the error), so only its removal statistic names it;
+  // the cluster of 10 outvotes it, and the loop refused meanwhile is judged again (Recover).
   PoseGraph<Pose2> graph;
   int session = -1;
   REQUIRE(graph.AddSession(0, &session).ok());
   constexpr int kLap = 200;
   constexpr int kPoses = 2 * kLap + 60;
   const Pose2 step(1.0, 0.0, 2.0 * M_PI / kLap);
+  // Odometry 0.05 m and 0.005 rad (1 sigma); loops 0.1 m and 0.01 rad.
   const Eigen::Matrix3d odometry_information = Eigen::Vector3d(400.0, 400.0, 4e4).asDiagonal();
   const Eigen::Matrix3d loop_information = Eigen::Vector3d(100.0, 100.0, 1e4).asDiagonal();
   std::vector<Pose2> truth = {Pose2()};
@@ -436,29 +441,44 @@ TEST_CASE("A wrong group that bent the map while only odometry checked it is rev
                          nullptr)
                 .ok());
   }
-  auto add_loop = [&](int from, int to, const Pose2& error) {
-    int edge = -1;
-    REQUIRE(
-        graph.AddLoop(from, to, truth[from].Inverse() * truth[to] * error, loop_information, &edge)
-            .ok());
-    return edge;
+  // Loops from the second lap back to the same places on the first, `links` from pose `first`.
+  auto add_loops = [&](int first, int links, const Pose2& error) {
+    std::vector<int> edges;
+    for (int from = first; from < first + links; ++from) {
+      const int to = from - kLap;
+      int edge = -1;
+      REQUIRE(
+          graph
+              .AddLoop(from, to, truth[from].Inverse() * truth[to] * error, loop_information, &edge)
+              .ok());
+      edges.push_back(edge);
+    }
+    return edges;
   };
-  std::vector<int> wrong;
-  std::vector<int> true_loops;
-  for (int k = 0; k < 3; ++k)
-    wrong.push_back(add_loop(kLap + 60 + k, 60 + k, Pose2(5.0, 0.0, 0.0)));
-  for (int k = 0; k < 10; ++k) true_loops.push_back(add_loop(kLap + 80 + k, 80 + k, Pose2()));
+  const std::vector<int> wrong = add_loops(kLap + 60, 3, Pose2(5.0, 0.0, 0.0));
+  const std::vector<int> lone = add_loops(kLap + 70, 1, Pose2());
+  const std::vector<int> large = add_loops(kLap + 80, 10, Pose2());
 
   IrrrOptions options;
   options.variance_factor = 1.0;  // the information is right
-  options.cluster_gap = 10.0;
+  options.cluster_gap = 4.0;      // three clusters
   std::vector<Pose2> estimate;
   std::vector<StepResult> steps;
   const std::vector<LoopDecision> decisions =
       RunIncrementalIrrr<Pose2>(graph, options, &estimate, &steps);
-  // The group was accepted first (its cluster closes first), then reversed.
-  for (int e : wrong) CHECK(decisions[e].state == LoopState::kReversed);
-  for (int e : true_loops) CHECK(decisions[e].state == LoopState::kAccepted);
+  REQUIRE(steps.size() == 3);
+  // The group was accepted first (its cluster closes first), then reversed at the third step.
+  for (int e : wrong) {
+    CHECK(decisions[e].state == LoopState::kReversed);
+    CHECK(decisions[e].step == 2);
+  }
+  for (int e : large) CHECK(decisions[e].state == LoopState::kAccepted);
+  // Refused at the second step, accepted at the third.
+  for (int e : lone) {
+    CHECK(decisions[e].state == LoopState::kAccepted);
+    CHECK(decisions[e].step == 2);
+  }
+  CHECK(steps[1].changed_loops.size() == 1);
   int reversals = 0;
   for (const StepResult& s : steps) reversals += s.reversals;
   CHECK(reversals == 1);
