@@ -372,28 +372,38 @@ TEMPLATE_TEST_CASE("No loop is accepted at a looser threshold than the informati
   CHECK(accepted > 0);
 }
 
+// One session of `poses` poses driven 1 m a step around a circle of `lap` poses (radius 31.8 m
+// for 200), noiseless odometry with `information`, into `graph`; returns the true poses.
+std::vector<Pose2> DriveCircle(int poses,
+                               int lap,
+                               const Eigen::Matrix3d& information,
+                               PoseGraph<Pose2>* graph) {
+  int session = -1;
+  REQUIRE(graph->AddSession(0, &session).ok());
+  const Pose2 step(1.0, 0.0, 2.0 * M_PI / lap);
+  std::vector<Pose2> truth = {Pose2()};
+  for (int i = 0; i < poses; ++i) {
+    if (i > 0) truth.push_back(truth.back() * step);
+    REQUIRE(graph
+                ->AddPose(session,
+                          i,
+                          i,
+                          truth.back(),
+                          i > 0 ? &step : nullptr,
+                          i > 0 ? &information : nullptr,
+                          nullptr)
+                .ok());
+  }
+  return truth;
+}
+
 TEST_CASE("A lone loop the estimate cannot check waits; one it can check is judged", "[irrr]") {
   PoseGraph<Pose2> graph;
-  int session = -1;
-  REQUIRE(graph.AddSession(0, &session).ok());
   constexpr int kPoses = 200;
-  const Pose2 step(1.0, 0.0, 2.0 * M_PI / kPoses);  // a circle of radius 31.8 m
   // Odometry 0.1 m and 0.02 rad (1 sigma); loops 1 m and 0.01 rad.
   const Eigen::Matrix3d odometry_information = Eigen::Vector3d(100.0, 100.0, 2500.0).asDiagonal();
   const Eigen::Matrix3d loop_information = Eigen::Vector3d(1.0, 1.0, 1e4).asDiagonal();
-  std::vector<Pose2> truth = {Pose2()};
-  for (int i = 0; i < kPoses; ++i) {
-    if (i > 0) truth.push_back(truth.back() * step);
-    REQUIRE(graph
-                .AddPose(session,
-                         i,
-                         i,
-                         truth.back(),
-                         i > 0 ? &step : nullptr,
-                         i > 0 ? &odometry_information : nullptr,
-                         nullptr)
-                .ok());
-  }
+  const std::vector<Pose2> truth = DriveCircle(kPoses, kPoses, odometry_information, &graph);
   const Pose2 short_loop = truth[10].Inverse() * truth[0];
   const Pose2 long_loop_wrong = truth[kPoses - 1].Inverse() * truth[60] * Pose2(2.0, 0.0, 0.0);
   int short_edge = -1;
@@ -420,27 +430,12 @@ TEST_CASE(
   // residuals stay small (the odometry took the error), so only its removal statistic names it;
   // the cluster of 10 outvotes it, and the loop refused meanwhile is judged again (Recover).
   PoseGraph<Pose2> graph;
-  int session = -1;
-  REQUIRE(graph.AddSession(0, &session).ok());
   constexpr int kLap = 200;
   constexpr int kPoses = 2 * kLap + 60;
-  const Pose2 step(1.0, 0.0, 2.0 * M_PI / kLap);
   // Odometry 0.05 m and 0.005 rad (1 sigma); loops 0.1 m and 0.01 rad.
   const Eigen::Matrix3d odometry_information = Eigen::Vector3d(400.0, 400.0, 4e4).asDiagonal();
   const Eigen::Matrix3d loop_information = Eigen::Vector3d(100.0, 100.0, 1e4).asDiagonal();
-  std::vector<Pose2> truth = {Pose2()};
-  for (int i = 0; i < kPoses; ++i) {
-    if (i > 0) truth.push_back(truth.back() * step);
-    REQUIRE(graph
-                .AddPose(session,
-                         i,
-                         i,
-                         truth.back(),
-                         i > 0 ? &step : nullptr,
-                         i > 0 ? &odometry_information : nullptr,
-                         nullptr)
-                .ok());
-  }
+  const std::vector<Pose2> truth = DriveCircle(kPoses, kLap, odometry_information, &graph);
   // Loops from the second lap back to the same places on the first, `links` from pose `first`.
   auto add_loops = [&](int first, int links, const Pose2& error) {
     std::vector<int> edges;
