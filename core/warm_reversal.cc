@@ -139,7 +139,14 @@ bool WarmEngine<Pose>::Impl::Replace(const std::vector<int>& suspects,
   if (!taken.empty()) {
     std::vector<int> sorted_suspects = suspects;
     SortLargestFirst(&sorted_suspects);
-    for (int g : sorted_suspects) take_if_passes(g);
+    size_t untried = 0;  // links of the suspects not tried back yet
+    for (int g : sorted_suspects) untried += book->clusters[g].links.size();
+    for (int g : sorted_suspects) {
+      // Once even all the suspects left cannot make the good set larger, it stays as it was.
+      if (base_links + untried <= good_links) break;
+      untried -= book->clusters[g].links.size();
+      take_if_passes(g);
+    }
   }
   if (base_links <= good_links) {
     // The good set stays as it was.
