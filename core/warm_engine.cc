@@ -516,8 +516,8 @@ void WarmEngine<Pose>::Restore() {
   m.good.Rebuild(m.GoodLoops(), m.AlignmentCap());
 }
 
-template struct WarmEngine<Pose2>::Impl;
-template struct WarmEngine<Pose3>::Impl;
+// With the engine, its Impl's members defined above (those of core/warm_reversal.cc are
+// instantiated there).
 template class WarmEngine<Pose2>;
 template class WarmEngine<Pose3>;
 
