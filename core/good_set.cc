@@ -161,49 +161,19 @@ Eigen::MatrixXd GoodSet<Pose>::Covariance(const std::vector<int>& vertices) cons
   return impl_->SolverOfVertex(vertices.front())->Covariance(vertices);
 }
 
-template <class Pose>
-std::vector<LinearizedAddition> GoodSet<Pose>::LinearizeEach(const std::vector<int>& loops) const {
-  IRRR_CHECK(!impl_->trial_open);
-  constexpr int d = Pose::kDim;
-  const PoseGraph<Pose>& graph = *impl_->graph;
-  std::vector<LinearizedAddition> out(loops.size());
-  for (size_t first = 0; first < loops.size(); first += kLinearizeChunk) {
-    const size_t last = std::min(loops.size(), first + kLinearizeChunk);
-    std::vector<int> vertices;
-    for (size_t k = first; k < last; ++k) {
-      vertices.push_back(graph.edge(loops[k]).from);
-      vertices.push_back(graph.edge(loops[k]).to);
-    }
-    std::sort(vertices.begin(), vertices.end());
-    vertices.erase(std::unique(vertices.begin(), vertices.end()), vertices.end());
-    const Eigen::MatrixXd covariance = Covariance(vertices);
-    auto index = [&vertices](int v) {
-      return static_cast<int>(std::lower_bound(vertices.begin(), vertices.end(), v) -
-                              vertices.begin());
-    };
-    for (size_t k = first; k < last; ++k) {
-      const Edge<Pose>& edge = graph.edge(loops[k]);
-      const int i = index(edge.from);
-      const int j = index(edge.to);
-      Eigen::MatrixXd sigma(2 * d, 2 * d);
-      sigma.topLeftCorner(d, d) = covariance.block(i * d, i * d, d, d);
-      sigma.topRightCorner(d, d) = covariance.block(i * d, j * d, d, d);
-      sigma.bottomLeftCorner(d, d) = covariance.block(j * d, i * d, d, d);
-      sigma.bottomRightCorner(d, d) = covariance.block(j * d, j * d, d, d);
-      out[k] = LinearizeAddition<Pose>({&edge}, *impl_->estimate, {edge.from, edge.to}, sigma);
-    }
-  }
-  return out;
-}
+namespace {
 
-template <class Pose>
-std::vector<double> GoodSet<Pose>::LinearizeRemovals(
-    const std::vector<std::vector<int>>& groups) const {
-  const PoseGraph<Pose>& graph = *impl_->graph;
-  std::vector<Pose> at = *impl_->estimate;  // the open trial's poses are written in below
-  std::vector<double> out(groups.size());
+// For groups of loops whose ends lie in one component of `good` (its open trial's, during one):
+// visit(k, ends, sigma) with group k's end poses (in the order its loops name them, each once)
+// and their joint marginal covariance. Groups of at most kLinearizeChunk loops together (a larger
+// one alone) share one covariance recovery.
+template <class Pose, class Visit>
+void ForEachJointCovariance(const GoodSet<Pose>& good,
+                            const PoseGraph<Pose>& graph,
+                            const std::vector<std::vector<int>>& groups,
+                            Visit visit) {
+  constexpr int d = Pose::kDim;
   for (size_t first = 0; first < groups.size();) {
-    // Groups of at most kLinearizeChunk loops together (a larger one alone) share one recovery.
     size_t last = first;
     size_t loops = 0;
     std::vector<int> vertices;
@@ -218,34 +188,66 @@ std::vector<double> GoodSet<Pose>::LinearizeRemovals(
     }
     std::sort(vertices.begin(), vertices.end());
     vertices.erase(std::unique(vertices.begin(), vertices.end()), vertices.end());
-    const Eigen::MatrixXd covariance = Covariance(vertices);
-    for (int v : vertices) at[v] = Estimate(v);
-    for (size_t g = first; g < last; ++g) {
-      std::vector<const Edge<Pose>*> edges;
+    const Eigen::MatrixXd covariance = good.Covariance(vertices);
+    for (size_t k = first; k < last; ++k) {
       std::vector<int> ends;
-      for (int e : groups[g]) {
-        edges.push_back(&graph.edge(e));
-        ends.push_back(graph.edge(e).from);
-        ends.push_back(graph.edge(e).to);
+      for (int e : groups[k]) {
+        for (int v : {graph.edge(e).from, graph.edge(e).to}) {
+          if (std::find(ends.begin(), ends.end(), v) == ends.end()) ends.push_back(v);
+        }
       }
-      std::sort(ends.begin(), ends.end());
-      ends.erase(std::unique(ends.begin(), ends.end()), ends.end());
       std::vector<int> index;
       for (int v : ends) {
         index.push_back(static_cast<int>(std::lower_bound(vertices.begin(), vertices.end(), v) -
                                          vertices.begin()));
       }
-      constexpr int d = Pose::kDim;
       Eigen::MatrixXd sigma(d * ends.size(), d * ends.size());
       for (size_t a = 0; a < ends.size(); ++a) {
         for (size_t b = 0; b < ends.size(); ++b) {
           sigma.block(a * d, b * d, d, d) = covariance.block(index[a] * d, index[b] * d, d, d);
         }
       }
-      out[g] = LinearizeRemoval<Pose>(edges, at, ends, sigma);
+      visit(k, ends, sigma);
     }
     first = last;
   }
+}
+
+}  // namespace
+
+template <class Pose>
+std::vector<LinearizedAddition> GoodSet<Pose>::LinearizeEach(const std::vector<int>& loops) const {
+  IRRR_CHECK(!impl_->trial_open);
+  const PoseGraph<Pose>& graph = *impl_->graph;
+  std::vector<std::vector<int>> groups;
+  for (int e : loops) groups.push_back({e});
+  std::vector<LinearizedAddition> out(loops.size());
+  ForEachJointCovariance<Pose>(
+      *this,
+      graph,
+      groups,
+      [&](size_t k, const std::vector<int>& ends, const Eigen::MatrixXd& sigma) {
+        out[k] = LinearizeAddition<Pose>({&graph.edge(loops[k])}, *impl_->estimate, ends, sigma);
+      });
+  return out;
+}
+
+template <class Pose>
+std::vector<double> GoodSet<Pose>::LinearizeRemovals(
+    const std::vector<std::vector<int>>& groups) const {
+  const PoseGraph<Pose>& graph = *impl_->graph;
+  std::vector<Pose> at = *impl_->estimate;  // with the open trial's poses written in
+  std::vector<double> out(groups.size());
+  ForEachJointCovariance<Pose>(
+      *this,
+      graph,
+      groups,
+      [&](size_t k, const std::vector<int>& ends, const Eigen::MatrixXd& sigma) {
+        std::vector<const Edge<Pose>*> edges;
+        for (int e : groups[k]) edges.push_back(&graph.edge(e));
+        for (int v : ends) at[v] = Estimate(v);
+        out[k] = LinearizeRemoval<Pose>(edges, at, ends, sigma);
+      });
   return out;
 }
 

@@ -151,7 +151,7 @@ bool WarmEngine<Pose>::Impl::Replace(const std::vector<int>& suspects,
   if (base_links <= good_links) {
     // The good set stays as it was.
     *estimate = saved;
-    good.Rebuild(loops_of(before), AlignmentCap());
+    good.Rebuild(GoodLoops(), AlignmentCap());  // no cluster's flag has changed
     return false;
   }
   for (int q : taken) {
