@@ -84,6 +84,11 @@ struct GoodSet<Pose>::Impl {
   Counters counters;
   long retired_solves = 0;
 
+  // The components RebuildKeeping kept aside, with their sessions' component ids.
+  std::vector<std::unique_ptr<IncrementalSolver<Pose>>> kept_solvers;
+  std::vector<int> kept_component_of_session;
+  bool keeping = false;
+
   // The open trial: in one component (trial_component), or a merge of two (trial_merged).
   bool trial_open = false;
   int trial_component = -1;
@@ -424,6 +429,41 @@ void GoodSet<Pose>::Rebuild(const std::vector<int>& good_loops, double alignment
     m.solvers[c] = m.Build(sessions, loops, &start);
     m.Publish(*m.solvers[c]);
   }
+}
+
+template <class Pose>
+void GoodSet<Pose>::RebuildKeeping(const std::vector<int>& good_loops, double alignment_cap) {
+  Impl& m = *impl_;
+  IRRR_CHECK(!m.trial_open && !m.keeping);
+  m.keeping = true;
+  m.kept_component_of_session = m.component_of_session;
+  m.kept_solvers.clear();
+  for (auto& solver : m.solvers) m.kept_solvers.push_back(std::move(solver));
+  // Rebuild retires what is left in the solvers' places: nothing.
+  Rebuild(good_loops, alignment_cap);
+}
+
+template <class Pose>
+void GoodSet<Pose>::Restore() {
+  Impl& m = *impl_;
+  IRRR_CHECK(!m.trial_open && m.keeping);
+  for (auto& solver : m.solvers) m.Retire(&solver);
+  m.solvers = std::move(m.kept_solvers);
+  m.kept_solvers.clear();
+  m.component_of_session = m.kept_component_of_session;
+  m.keeping = false;
+  for (const auto& solver : m.solvers) {
+    if (solver != nullptr) m.Publish(*solver);  // (a merged component's place is empty)
+  }
+}
+
+template <class Pose>
+void GoodSet<Pose>::Release() {
+  Impl& m = *impl_;
+  IRRR_CHECK(m.keeping);
+  for (auto& solver : m.kept_solvers) m.Retire(&solver);
+  m.kept_solvers.clear();
+  m.keeping = false;
 }
 
 template <class Pose>

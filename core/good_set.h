@@ -85,6 +85,12 @@ class GoodSet {
   // frame of its earliest session's first pose (frames that the loops join aligned through their
   // most agreed-on link first), and optimized.
   void Rebuild(const std::vector<int>& good_loops, double alignment_cap);
+  // Rebuild, with the components as they were kept aside until Restore puts them back exactly
+  // (their solvers and estimate: an attempt that fails leaves the good set as it was, without
+  // solving it again) or Release lets them go. Not during a trial; one kept set at a time.
+  void RebuildKeeping(const std::vector<int>& good_loops, double alignment_cap);
+  void Restore();
+  void Release();
 
   // The solver of a component (its estimate, edges and counters).
   const IncrementalSolver<Pose>& Solver(int component) const;

@@ -111,7 +111,6 @@ bool WarmEngine<Pose>::Impl::Replace(const std::vector<int>& suspects,
     base.push_back(g);
     if (Within(components, g)) base_links += book->clusters[g].links.size();
   }
-  const std::vector<Pose> saved = *estimate;
   auto loops_of = [this](const std::vector<int>& clusters) {
     std::vector<int> loops;
     for (int g : clusters) {
@@ -119,7 +118,7 @@ bool WarmEngine<Pose>::Impl::Replace(const std::vector<int>& suspects,
     }
     return loops;
   };
-  good.Rebuild(loops_of(base), AlignmentCap());
+  good.RebuildKeeping(loops_of(base), AlignmentCap());
   std::vector<int> taken;
   auto take_if_passes = [&](int q) {
     const typename GoodSet<Pose>::Trial trial = good.Try(book->clusters[q].links, AlignmentCap());
@@ -149,11 +148,10 @@ bool WarmEngine<Pose>::Impl::Replace(const std::vector<int>& suspects,
     }
   }
   if (base_links <= good_links) {
-    // The good set stays as it was.
-    *estimate = saved;
-    good.Rebuild(GoodLoops(), AlignmentCap());  // no cluster's flag has changed
+    good.Restore();  // the good set stays as it was
     return false;
   }
+  good.Release();
   for (int q : taken) {
     if (!book->clusters[q].in_good) Accept(q, &result->changed_loops);
   }

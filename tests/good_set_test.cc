@@ -1,0 +1,94 @@
+#include "core/good_set.h"
+
+#include <algorithm>
+#include <vector>
+
+#include <catch2/catch.hpp>
+
+#include "tests/synthetic_graph.h"
+
+namespace irrr {
+namespace {
+
+using testing::MakeSyntheticGraph;
+using testing::NoisyOptions;
+using testing::RelativeDifference;
+using testing::SyntheticOptions;
+
+// A cap on the links' d^2 when two sessions' frames are aligned (far above these graphs' own).
+constexpr double kAlignmentCap = 1e6;
+
+// The chi2 of the good set: the sum over its components.
+template <class Pose>
+double GoodChi2(const GoodSet<Pose>& good, int num_sessions) {
+  std::vector<int> components;
+  for (int s = 0; s < num_sessions; ++s) components.push_back(good.ComponentOf(s));
+  std::sort(components.begin(), components.end());
+  components.erase(std::unique(components.begin(), components.end()), components.end());
+  double chi2 = 0.0;
+  for (int c : components) chi2 += good.Solver(c).chi2();
+  return chi2;
+}
+
+TEMPLATE_TEST_CASE("A good set rebuilt while its components are kept is restored exactly",
+                   "[good_set]",
+                   Pose2,
+                   Pose3) {
+  SyntheticOptions options = NoisyOptions<TestType>(7);
+  options.num_sessions = 2;
+  const auto synthetic = MakeSyntheticGraph<TestType>(options);
+  const PoseGraph<TestType>& graph = synthetic.graph;
+  std::vector<int> joining;  // loops between the two sessions
+  std::vector<int> within;   // the others
+  for (int e : synthetic.loop_edges) {
+    const Edge<TestType>& edge = graph.edge(e);
+    const bool joins = graph.vertex(edge.from).session != graph.vertex(edge.to).session;
+    (joins ? joining : within).push_back(e);
+  }
+  REQUIRE(!joining.empty());
+  REQUIRE(within.size() >= 3);
+
+  std::vector<TestType> estimate;
+  GoodSet<TestType> good(&graph, &estimate, IncrementalSolverOptions());
+  for (int v = 0; v < graph.num_vertices(); ++v) good.AddPose(v);
+  // A probe of the solvers' state: a trial of a loop left out of the good set.
+  const int probe = within.back();
+  within.pop_back();
+  std::vector<int> loops = joining;
+  loops.insert(loops.end(), within.begin(), within.end());
+  good.Rebuild(loops, kAlignmentCap);
+  REQUIRE(good.ComponentOf(0) == good.ComponentOf(1));
+  const std::vector<TestType> before = estimate;
+  const double chi2_before = GoodChi2(good, 2);
+  const double increase_before = good.Try({probe}, kAlignmentCap).increase;
+  good.Rollback();
+  CHECK(increase_before > 0.0);
+
+  // Without the loops that join the sessions, each keeps a frame of its own.
+  good.RebuildKeeping(within, kAlignmentCap);
+  CHECK(good.ComponentOf(0) != good.ComponentOf(1));
+  CHECK(GoodChi2(good, 2) < chi2_before);
+
+  good.Restore();
+  CHECK(good.ComponentOf(0) == good.ComponentOf(1));
+  CHECK(GoodChi2(good, 2) == chi2_before);
+  double translation = 0.0;
+  double rotation = 0.0;
+  RelativeDifference(before, estimate, 0, &translation, &rotation);
+  CHECK(translation == 0.0);
+  CHECK(rotation == 0.0);
+  const typename GoodSet<TestType>::Trial trial = good.Try({probe}, kAlignmentCap);
+  REQUIRE(trial.ok);
+  CHECK(trial.increase == increase_before);
+  good.Rollback();
+
+  // Released, the rebuilt good set stays.
+  good.RebuildKeeping(within, kAlignmentCap);
+  const double chi2_without = GoodChi2(good, 2);
+  good.Release();
+  CHECK(good.ComponentOf(0) != good.ComponentOf(1));
+  CHECK(GoodChi2(good, 2) == chi2_without);
+}
+
+}  // namespace
+}  // namespace irrr
