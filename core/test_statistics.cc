@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <map>
+#include <tuple>
 
 #include <Eigen/Cholesky>
 #include <boost/math/distributions/chi_squared.hpp>
@@ -10,15 +12,39 @@
 
 namespace irrr {
 
+namespace {
+
+// The engine asks for the same few quantiles over and over (a handful of dof per step), and each
+// is an inverse incomplete gamma or beta function: remembered per thread, at most 4096 of them,
+// by (alpha, dof, the F distribution's second dof or -1 for chi-square).
+template <class Compute>
+double Remembered(double alpha, double dof, double dof2, Compute compute) {
+  constexpr size_t kCached = 4096;
+  thread_local std::map<std::tuple<double, double, double>, double> cache;
+  const auto key = std::make_tuple(alpha, dof, dof2);
+  auto it = cache.find(key);
+  if (it == cache.end()) {
+    if (cache.size() >= kCached) cache.clear();
+    it = cache.emplace(key, compute()).first;
+  }
+  return it->second;
+}
+
+}  // namespace
+
 double ChiSquareQuantile(double alpha, double dof) {
-  return boost::math::quantile(boost::math::chi_squared(dof), alpha);
+  return Remembered(alpha, dof, -1.0, [&] {
+    return boost::math::quantile(boost::math::chi_squared(dof), alpha);
+  });
 }
 
 double ChiSquareMedian(double dof) { return ChiSquareQuantile(0.5, dof); }
 
 double ScaledChiSquareThreshold(double alpha, double dof, double variance, double variance_dof) {
   if (!std::isfinite(variance_dof)) return variance * ChiSquareQuantile(alpha, dof);
-  return variance * dof * boost::math::quantile(boost::math::fisher_f(dof, variance_dof), alpha);
+  return variance * dof * Remembered(alpha, dof, variance_dof, [&] {
+           return boost::math::quantile(boost::math::fisher_f(dof, variance_dof), alpha);
+         });
 }
 
 double RobustVarianceFactor(const std::vector<RedundancySample>& samples) {
