@@ -228,10 +228,10 @@ struct WarmEngine<Pose>::Impl {
                  const std::vector<int>& components,
                  StepResult* result);
 
-  // From the good set without `suspects`, each challenger and then each suspect is added if it
-  // passes the joint test. A good set so built with more links replaces the current one (true):
-  // suspects left out are reversed, challengers taken in accepted (the largest consistent set
-  // wins).
+  // From the good set without `suspects`, each challenger (largest first) and then each suspect
+  // (in the order given, most inconsistent first) is added if it passes the joint test. A good set
+  // so built with more links replaces the current one (true): suspects left out are reversed,
+  // challengers taken in accepted (the largest consistent set wins).
   bool Replace(const std::vector<int>& suspects,
                const std::vector<int>& challengers,
                const std::vector<int>& components,

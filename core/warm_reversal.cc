@@ -134,13 +134,13 @@ bool WarmEngine<Pose>::Impl::Replace(const std::vector<int>& suspects,
   for (int r : challengers) {
     if (MayPass(r)) take_if_passes(r);
   }
-  // Without a challenger taken, the suspects taken back cannot make the good set larger.
+  // Without a challenger taken, the suspects taken back cannot make the good set larger. They are
+  // tried back most inconsistent first: those a challenger taken conflicts with fail first, and
+  // the attempt ends as soon as it cannot make the good set larger.
   if (!taken.empty()) {
-    std::vector<int> sorted_suspects = suspects;
-    SortLargestFirst(&sorted_suspects);
     size_t untried = 0;  // links of the suspects not tried back yet
-    for (int g : sorted_suspects) untried += book->clusters[g].links.size();
-    for (int g : sorted_suspects) {
+    for (int g : suspects) untried += book->clusters[g].links.size();
+    for (int g : suspects) {
       // Once even all the suspects left cannot make the good set larger, it stays as it was.
       if (base_links + untried <= good_links) break;
       untried -= book->clusters[g].links.size();
