@@ -229,7 +229,7 @@ struct WarmEngine<Pose>::Impl {
                  StepResult* result);
 
   // From the good set without `suspects`, each challenger (largest first) and then each suspect
-  // (in the order given, most inconsistent first) is added if it passes the joint test. A good set
+  // (most strained by the good set so built first) is added if it passes the joint test. A good set
   // so built with more links replaces the current one (true): suspects left out are reversed,
   // challengers taken in accepted (the largest consistent set wins).
   bool Replace(const std::vector<int>& suspects,
@@ -251,6 +251,9 @@ struct WarmEngine<Pose>::Impl {
   // out without a nonlinear trial. Clusters between two components are not ruled out here. Like
   // any screen, it leaves its links' redundancy numbers in `control`.
   bool MayPass(int q);
+  // The largest linearized statistic of cluster q's links against the good set over the
+  // cluster's threshold (0 when its ends lie in two components).
+  double Strain(int q) const;
 
   // ---- state ---------------------------------------------------------------------------------
 

@@ -135,12 +135,18 @@ bool WarmEngine<Pose>::Impl::Replace(const std::vector<int>& suspects,
     if (MayPass(r)) take_if_passes(r);
   }
   // Without a challenger taken, the suspects taken back cannot make the good set larger. They are
-  // tried back most inconsistent first: those a challenger taken conflicts with fail first, and
-  // the attempt ends as soon as it cannot make the good set larger.
+  // tried back most strained first by the good set so built (the order given breaks ties): one
+  // that a challenger taken conflicts with fails first, and the attempt ends as soon as it cannot
+  // make the good set larger.
   if (!taken.empty()) {
+    std::vector<std::pair<double, int>> strained;  // (-strain, suspect)
+    for (int g : suspects) strained.push_back({-Strain(g), g});
+    std::stable_sort(strained.begin(), strained.end(), [](const auto& a, const auto& b) {
+      return a.first < b.first;
+    });
     size_t untried = 0;  // links of the suspects not tried back yet
     for (int g : suspects) untried += book->clusters[g].links.size();
-    for (int g : suspects) {
+    for (const auto& [unused, g] : strained) {
       // Once even all the suspects left cannot make the good set larger, it stays as it was.
       if (base_links + untried <= good_links) break;
       untried -= book->clusters[g].links.size();
@@ -177,6 +183,17 @@ bool WarmEngine<Pose>::Impl::MayPass(int q) {
   const std::vector<double> statistic = LinkStatistics(c.links);
   const double worst = *std::max_element(statistic.begin(), statistic.end());
   return worst <= kClusterMargin * Threshold(static_cast<double>(d * c.links.size()));
+}
+
+template <class Pose>
+double WarmEngine<Pose>::Impl::Strain(int q) const {
+  const JudgedCluster& c = book->clusters[q];
+  if (good.ComponentOf(c.session_a) != good.ComponentOf(c.session_b)) return 0.0;
+  double worst = 0.0;
+  for (const LinearizedAddition& addition : good.LinearizeEach(c.links)) {
+    worst = std::max(worst, addition.chi2_increase);
+  }
+  return worst / Threshold(static_cast<double>(d * c.links.size()));
 }
 
 template <class Pose>
@@ -219,6 +236,7 @@ void WarmEngine<Pose>::Impl::Recover(int since,
   template bool WarmEngine<Pose>::Impl::Replace(                                               \
       const std::vector<int>&, const std::vector<int>&, const std::vector<int>&, StepResult*); \
   template bool WarmEngine<Pose>::Impl::MayPass(int);                                          \
+  template double WarmEngine<Pose>::Impl::Strain(int) const;                                   \
   template void WarmEngine<Pose>::Impl::Recover(                                               \
       int, const std::vector<int>&, const std::vector<int>&, StepResult*);
 IRRR_INSTANTIATE_REVERSAL(Pose2)
