@@ -11,6 +11,9 @@ Status IncrementalSolverOptions::Validate() const {
   if (!(relinearize_translation > 0.0)) return Status::Error("relinearize_translation must be > 0");
   if (max_iterations < 1) return Status::Error("max_iterations must be at least 1");
   if (trial_max_iterations < 1) return Status::Error("trial_max_iterations must be at least 1");
+  if (trial_batch_max_iterations < 1) {
+    return Status::Error("trial_batch_max_iterations must be at least 1");
+  }
   if (!(spare_fraction >= 0.0)) return Status::Error("spare_fraction must be >= 0");
   if (!(refill_ratio > 1.0)) return Status::Error("refill_ratio must be > 1");
   return Status::Ok();

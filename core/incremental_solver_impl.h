@@ -73,7 +73,8 @@ struct IncrementalSolver<Pose>::Impl {
     bool analysis_valid = false;  // the symbolic analysis at the checkpoint fit its structure
   };
 
-  Impl(const PoseGraph<Pose>* g, const IncrementalSolverOptions& o) : graph(g), options(o) {
+  Impl(const PoseGraph<Pose>* g, const IncrementalSolverOptions& o)
+      : graph(g), options(o), trial_batch_optimizer(TrialBatchOptions(o)) {
     cholmod_start(&common);
     common.print = 0;
     common.error_handler = nullptr;
@@ -522,7 +523,8 @@ struct IncrementalSolver<Pose>::Impl {
     }
     std::vector<char> active(graph->num_edges(), 0);
     for (int e : edges) active[e] = 1;
-    const OptimizerSummary summary = batch_optimizer.Solve(*graph, active, &poses);
+    Optimizer<Pose>& optimizer = trial_active ? trial_batch_optimizer : batch_optimizer;
+    const OptimizerSummary summary = optimizer.Solve(*graph, active, &poses);
     if (!summary.IsSolutionUsable()) return false;
     for (int s = 0; s < used; ++s) x[s] = poses[vertex_of_slot[s]];
     return true;
@@ -622,6 +624,13 @@ struct IncrementalSolver<Pose>::Impl {
   IncrementalSolverOptions options;
   Counters counters;
   Optimizer<Pose> batch_optimizer;
+  Optimizer<Pose> trial_batch_optimizer;  // at most options.trial_batch_max_iterations
+
+  static OptimizerOptions TrialBatchOptions(const IncrementalSolverOptions& options) {
+    OptimizerOptions batch;
+    batch.max_iterations = options.trial_batch_max_iterations;
+    return batch;
+  }
 
   int anchor = -1;
   Pose anchor_pose;

@@ -201,6 +201,42 @@ TEMPLATE_TEST_CASE("Removing loops returns to the optimum without them",
   CheckAtBatchOptimum(graph, active, solver, estimate);
 }
 
+TEMPLATE_TEST_CASE("A trial whose batch solve does not settle it within its iterations fails",
+                   "[incremental]",
+                   Pose2,
+                   Pose3) {
+  auto synthetic = MakeSyntheticGraph<TestType>(NoisyOptions<TestType>(6));
+  PoseGraph<TestType>& graph = synthetic.graph;
+  const std::vector<char> use(graph.num_edges(), 1);
+  // A wrong loop: the first pose and one half way along said to be 30 m and nearly a half turn
+  // apart (whatever they are), as certain as the odometry.
+  const int n = graph.num_vertices();
+  const int wrong = graph.num_edges();
+  typename TestType::Tangent far = TestType::Tangent::Zero();
+  far(0) = 30.0;
+  far(TestType::kDim - 1) = 3.0;
+  REQUIRE(
+      graph.AddLoop(0, n / 2, TestType().Retract(far), graph.edge(0).information, nullptr).ok());
+  auto trial = [&](int batch_iterations) {
+    IncrementalSolverOptions options;
+    options.trial_batch_max_iterations = batch_iterations;
+    IncrementalSolver<TestType> solver(&graph, options);
+    std::vector<char> all = use;
+    all.push_back(0);
+    FeedIncrementally(graph, &solver, all);
+    solver.Checkpoint();
+    const IncrementalSummary summary = solver.Add({wrong});
+    solver.Rollback();
+    return summary;
+  };
+  const IncrementalSummary settled = trial(100);
+  const IncrementalSummary cut = trial(1);
+  INFO(settled.message << " / " << cut.message);
+  CHECK(settled.ok);
+  CHECK(!cut.ok);
+  CHECK(cut.message == "did not converge");
+}
+
 TEST_CASE("Reset starts from the given poses, anchored at the first", "[incremental]") {
   const auto synthetic = MakeSyntheticGraph<Pose2>(NoisyOptions<Pose2>(6));
   const PoseGraph<Pose2>& graph = synthetic.graph;
