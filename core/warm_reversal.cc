@@ -97,28 +97,19 @@ bool WarmEngine<Pose>::Impl::Replace(const std::vector<int>& suspects,
                                      const std::vector<int>& challengers,
                                      const std::vector<int>& components,
                                      StepResult* result) {
-  std::vector<int> before;  // the good clusters now
-  size_t good_links = 0;
+  size_t good_links = 0;        // of the good set now, in the components involved
+  size_t base_links = 0;        // of the good set being built, there
+  std::vector<int> base_loops;  // the good set without the suspects
   for (int g = 0; g < static_cast<int>(book->clusters.size()); ++g) {
-    if (!book->clusters[g].in_good) continue;
-    before.push_back(g);
-    if (Within(components, g)) good_links += book->clusters[g].links.size();
-  }
-  std::vector<int> base;
-  size_t base_links = 0;
-  for (int g : before) {
+    const JudgedCluster& c = book->clusters[g];
+    if (!c.in_good) continue;
+    const size_t links = Within(components, g) ? c.links.size() : 0;
+    good_links += links;
     if (std::find(suspects.begin(), suspects.end(), g) != suspects.end()) continue;
-    base.push_back(g);
-    if (Within(components, g)) base_links += book->clusters[g].links.size();
+    base_links += links;
+    base_loops.insert(base_loops.end(), c.links.begin(), c.links.end());
   }
-  auto loops_of = [this](const std::vector<int>& clusters) {
-    std::vector<int> loops;
-    for (int g : clusters) {
-      loops.insert(loops.end(), book->clusters[g].links.begin(), book->clusters[g].links.end());
-    }
-    return loops;
-  };
-  good.RebuildKeeping(loops_of(base), AlignmentCap());
+  good.RebuildKeeping(base_loops, AlignmentCap());
   std::vector<int> taken;
   auto take_if_passes = [&](int q) {
     const typename GoodSet<Pose>::Trial trial = good.Try(book->clusters[q].links, AlignmentCap());
