@@ -78,12 +78,13 @@ struct IncrementalSolver<Pose>::Impl {
     cholmod_start(&common);
     common.print = 0;
     common.error_handler = nullptr;
-    // LDL' (the form CHOLMOD modifies), simplicial, in the order given (ours: the future poses'
-    // places last), not postordered (that would move them).
+    // LDL' (the form CHOLMOD modifies), simplicial, of a matrix Rebuild assembles already in our
+    // order (the future poses' places last): CHOLMOD keeps its natural order, and does not
+    // postorder (that would move the free places).
     common.supernodal = CHOLMOD_SIMPLICIAL;
     common.final_ll = 0;
     common.nmethods = 1;
-    common.method[0].ordering = CHOLMOD_GIVEN;
+    common.method[0].ordering = CHOLMOD_NATURAL;
     common.postorder = 0;
   }
 
@@ -284,20 +285,23 @@ struct IncrementalSolver<Pose>::Impl {
       cholmod_free_sparse(&pattern, &common);
       if (!ok) return false;
     }
-    std::vector<int> perm;
     if (!reuse_analysis) {
-      perm.reserve(n);
+      permutation.clear();
+      permutation.reserve(n);
       for (int s : order) {
-        for (int a = 0; a < d; ++a) perm.push_back(s * d + a);
+        for (int a = 0; a < d; ++a) permutation.push_back(s * d + a);
       }
       for (int s = used; s < capacity; ++s) {
-        for (int a = 0; a < d; ++a) perm.push_back(s * d + a);
+        for (int a = 0; a < d; ++a) permutation.push_back(s * d + a);
       }
       position.assign(n, 0);
-      for (int k = 0; k < n; ++k) position[perm[k]] = k;
+      for (int k = 0; k < n; ++k) position[permutation[k]] = k;
     }
 
-    // H at x_lin (upper triangle, original order), identity on the free places.
+    // P H P' at x_lin (upper triangle, in the factor's order), identity on the free places. Given
+    // H and the order, CHOLMOD would permute H with two transposes at every factorization (a
+    // tenth of a reversal-heavy run); assembled permuted, H is factorized as it comes, by the
+    // same arithmetic.
     std::vector<Term> terms;
     terms.reserve(edges.size());
     for (int e : edges) terms.push_back(Linearize(e));
@@ -312,11 +316,15 @@ struct IncrementalSolver<Pose>::Impl {
     auto add_block = [&](int row_slot, int column_slot, const Matrix& block) {
       for (int a = 0; a < d; ++a) {
         for (int c = 0; c < d; ++c) {
-          int row = row_slot * d + a;
-          int column = column_slot * d + c;
+          const int row = row_slot * d + a;
+          const int column = column_slot * d + c;
           if (row > column) continue;
-          ti[count] = row;
-          tj[count] = column;
+          // A pose's own variables keep their order in the factor's: the lower triangle of a
+          // diagonal block stays out.
+          const int i = position[row];
+          const int j = position[column];
+          ti[count] = std::min(i, j);
+          tj[count] = std::max(i, j);
           tx[count] = block(a, c);
           ++count;
         }
@@ -336,7 +344,7 @@ struct IncrementalSolver<Pose>::Impl {
       }
     }
     for (int k = used * d; k < n; ++k) {
-      ti[count] = tj[count] = k;
+      ti[count] = tj[count] = position[k];
       tx[count] = 1.0;
       ++count;
     }
@@ -352,7 +360,7 @@ struct IncrementalSolver<Pose>::Impl {
     } else {
       if (symbolic != nullptr) cholmod_free_factor(&symbolic, &common);
       common.supernodal = CHOLMOD_AUTO;
-      factor = cholmod_analyze_p(A, perm.data(), nullptr, 0, &common);
+      factor = cholmod_analyze(A, &common);
       rebuild_flops = common.fl;
       if (factor != nullptr) symbolic = cholmod_copy_factor(factor, &common);
       analyzed_version = structure_version;
@@ -365,6 +373,11 @@ struct IncrementalSolver<Pose>::Impl {
            common.status == CHOLMOD_OK;
     }
     if (!ok) return false;
+    // The factor is of P H P': its permutation is ours, for the solves (updates and covariances
+    // work in the factor's order already).
+    int* factor_order = static_cast<int*>(factor->Perm);
+    std::copy(permutation.begin(), permutation.end(), factor_order);
+    factor->ordering = CHOLMOD_GIVEN;
     nonzeros_after_build = FactorNonzeros();
     modifications_since_check = 0;
     rebuild_due = false;
@@ -654,7 +667,8 @@ struct IncrementalSolver<Pose>::Impl {
   cholmod_factor* symbolic = nullptr;
   long structure_version = 0;
   long analyzed_version = -1;
-  std::vector<int> position;  // per scalar variable: its row in the factor
+  std::vector<int> position;     // per scalar variable: its row in the factor
+  std::vector<int> permutation;  // per row of the factor: its scalar variable
   double nonzeros_after_build = 0.0;
   double rebuild_flops = 0.0;  // of the last factorization
   int modifications_since_check = 0;
