@@ -263,7 +263,8 @@ const Pose& GoodSet<Pose>::Estimate(int vertex) const {
 
 template <class Pose>
 typename GoodSet<Pose>::Trial GoodSet<Pose>::Try(const std::vector<int>& loops,
-                                                 double alignment_cap) {
+                                                 double alignment_cap,
+                                                 double max_increase) {
   Impl& m = *impl_;
   IRRR_CHECK(!m.trial_open && !loops.empty());
   const PoseGraph<Pose>& graph = *m.graph;
@@ -281,7 +282,7 @@ typename GoodSet<Pose>::Trial GoodSet<Pose>::Try(const std::vector<int>& loops,
   if (components.size() == 1) {
     IncrementalSolver<Pose>& solver = *m.solvers[components[0]];
     const double before = solver.chi2();
-    solver.Checkpoint();
+    solver.Checkpoint(before + max_increase);
     const IncrementalSummary summary = solver.Add(loops);
     m.counters.iterations += summary.iterations;
     if (!summary.ok) {

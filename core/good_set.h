@@ -15,6 +15,7 @@
 //
 // The estimate is written into the vector given at construction (one pose per vertex).
 
+#include <limits>
 #include <memory>
 #include <vector>
 
@@ -73,8 +74,12 @@ class GoodSet {
   // Rollback. At most one trial at a time. Two components are brought into one frame through the
   // link whose alignment the others agree with best, each link's d^2 capped at `alignment_cap`.
   // A trial of 10 loops or more that the incremental solver does not settle is settled by a batch
-  // solve; a smaller one is not open (ok false).
-  Trial Try(const std::vector<int>& loops, double alignment_cap);
+  // solve; a smaller one is not open (ok false). A caller that rejects an increase above
+  // `max_increase` lets a trial in one component fail as unsettled as soon as its batch solve
+  // cannot bring the increase down to it (IncrementalSolver::Checkpoint).
+  Trial Try(const std::vector<int>& loops,
+            double alignment_cap,
+            double max_increase = std::numeric_limits<double>::infinity());
   void Commit();
   void Rollback();
 

@@ -197,7 +197,7 @@ IncrementalSummary IncrementalSolver<Pose>::Remove(const std::vector<int>& edges
 }
 
 template <class Pose>
-void IncrementalSolver<Pose>::Checkpoint() {
+void IncrementalSolver<Pose>::Checkpoint(double target_chi2) {
   Impl& m = *impl_;
   IRRR_CHECK(!m.trial_active);
   m.trial_active = true;
@@ -213,6 +213,7 @@ void IncrementalSolver<Pose>::Checkpoint() {
   t.removed.clear();
   t.rebuilt = false;
   t.analysis_valid = m.analyzed_version == m.structure_version;
+  t.target_chi2 = target_chi2;
 }
 
 template <class Pose>

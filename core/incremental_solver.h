@@ -28,6 +28,7 @@
 //
 // Core runs no threads; an IncrementalSolver is not safe to use from two threads at once.
 
+#include <limits>
 #include <memory>
 #include <vector>
 
@@ -53,7 +54,8 @@ struct IncrementalSolverOptions {
   int trial_max_iterations = 12;
   // The batch solve a trial turns to stops after this many iterations: loops that conflict with
   // the problem leave it with large residuals, where Gauss-Newton crawls (83 iterations for 1%
-  // of chi2 on a wrong group of the demo's file), and a trial not settled by then fails.
+  // of chi2 on a wrong group of the demo's file), and a trial not settled by then fails. It fails
+  // sooner when its target chi2 (Checkpoint) is out of reach in the iterations left.
   int trial_batch_max_iterations = 15;
   // Free places for new poses, as a fraction of the poses at a rebuild (at least kMinSpare).
   double spare_fraction = 0.5;
@@ -108,7 +110,10 @@ class IncrementalSolver {
   // A trial: Checkpoint() remembers the problem; Rollback() returns to it exactly (the estimate
   // and the linear system bit for bit, the factor to rounding), Commit() forgets it. Extend may
   // not be called during a trial. Checkpoint during a trial is a broken invariant.
-  void Checkpoint();
+  //
+  // A trial whose outcome matters only if its chi2 ends at most `target_chi2` fails ("out of
+  // reach") as soon as its batch solve finds that it cannot get there in its iterations.
+  void Checkpoint(double target_chi2 = std::numeric_limits<double>::infinity());
   void Rollback();
   void Commit();
   bool InTrial() const;

@@ -71,6 +71,7 @@ struct IncrementalSolver<Pose>::Impl {
     std::vector<int> removed;  // edges removed during the trial (and still out)
     bool rebuilt = false;
     bool analysis_valid = false;  // the symbolic analysis at the checkpoint fit its structure
+    double target_chi2 = std::numeric_limits<double>::infinity();  // see Checkpoint
   };
 
   Impl(const PoseGraph<Pose>* g, const IncrementalSolverOptions& o)
@@ -499,7 +500,9 @@ struct IncrementalSolver<Pose>::Impl {
       if (unsettled && trial_active && batch_solved) return Failed(summary, "did not converge");
       if (unsettled && !batch_solved) {
         batch_solved = true;
-        if (!BatchSolve(start)) return Failed(summary, "the batch solve failed");
+        bool out_of_reach = false;
+        if (!BatchSolve(start, &out_of_reach)) return Failed(summary, "the batch solve failed");
+        if (out_of_reach) return Failed(summary, "the trial's target chi2 is out of reach");
         if (!Rebuild(false)) return Failed(summary, "factorization failed (rebuild)");
       } else if (large) {
         if (!Rebuild(false)) return Failed(summary, "factorization failed (rebuild)");
@@ -515,8 +518,8 @@ struct IncrementalSolver<Pose>::Impl {
   }
 
   // x = the optimum of the problem by Optimizer, from `start` or the current x, whichever has the
-  // lower chi2.
-  bool BatchSolve(const std::vector<Pose>& start) {
+  // lower chi2. During a trial, `out_of_reach` tells whether it gave up on the trial's target.
+  bool BatchSolve(const std::vector<Pose>& start, bool* out_of_reach) {
     ++counters.batch_solves;
     const int used = static_cast<int>(vertex_of_slot.size());
     const double chi2_now = ExactChi2();
@@ -537,8 +540,11 @@ struct IncrementalSolver<Pose>::Impl {
     std::vector<char> active(graph->num_edges(), 0);
     for (int e : edges) active[e] = 1;
     Optimizer<Pose>& optimizer = trial_active ? trial_batch_optimizer : batch_optimizer;
-    const OptimizerSummary summary = optimizer.Solve(*graph, active, &poses);
+    const double target =
+        trial_active ? trial.target_chi2 : std::numeric_limits<double>::infinity();
+    const OptimizerSummary summary = optimizer.Solve(*graph, active, &poses, target);
     if (!summary.IsSolutionUsable()) return false;
+    *out_of_reach = summary.termination == TerminationType::kOutOfReach;
     for (int s = 0; s < used; ++s) x[s] = poses[vertex_of_slot[s]];
     return true;
   }

@@ -33,6 +33,8 @@ const char* TerminationTypeName(TerminationType type) {
       return "CONVERGENCE";
     case TerminationType::kNoConvergence:
       return "NO_CONVERGENCE";
+    case TerminationType::kOutOfReach:
+      return "OUT_OF_REACH";
     case TerminationType::kFailure:
       return "FAILURE";
   }
@@ -235,7 +237,8 @@ double Optimizer<Pose>::Linearize(const PoseGraph<Pose>& graph,
 template <class Pose>
 OptimizerSummary Optimizer<Pose>::Solve(const PoseGraph<Pose>& graph,
                                         const std::vector<char>& active,
-                                        std::vector<Pose>* estimate) {
+                                        std::vector<Pose>* estimate,
+                                        double target_chi2) {
   constexpr int d = Pose::kDim;
   IRRR_CHECK(options_.Validate().ok());
   IRRR_CHECK(static_cast<int>(active.size()) == graph.num_edges());
@@ -401,6 +404,12 @@ OptimizerSummary Optimizer<Pose>::Solve(const PoseGraph<Pose>& graph,
       if (small_decrease) {
         summary.termination = TerminationType::kConvergence;
         summary.message = "function tolerance reached";
+        break;
+      }
+      const int iterations_left = options_.max_iterations - summary.iterations;
+      if (summary.iterations >= 2 && chi2 - target_chi2 > iterations_left * decrease) {
+        summary.termination = TerminationType::kOutOfReach;
+        summary.message = "the target chi2 is out of reach";
         break;
       }
       if (levenberg_marquardt) Linearize(graph, active, fixed, x, &gradient);

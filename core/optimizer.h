@@ -15,6 +15,7 @@
 // where they are. Fixed poses keep their place in the linear system with an identity block, so
 // the pattern does not depend on which poses are fixed.
 
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -50,7 +51,10 @@ struct OptimizerOptions {
 enum class TerminationType {
   kConvergence,    // a tolerance was met
   kNoConvergence,  // max_iterations reached; the estimate is the last accepted iterate
-  kFailure,        // the linear solver failed or numbers became non-finite; see message
+  // Solve's target chi2 cannot be reached in the iterations left at the rate of the last
+  // accepted step; the estimate is the last accepted iterate
+  kOutOfReach,
+  kFailure,  // the linear solver failed or numbers became non-finite; see message
 };
 
 const char* TerminationTypeName(TerminationType type);
@@ -83,9 +87,15 @@ class Optimizer {
   // holds one pose per vertex on entry and the result on return; it is changed only by accepted
   // steps, so on failure it holds the last good iterate (see estimate_updated). Options must be
   // valid and sizes must match (checked, aborts otherwise).
+  //
+  // A caller that only needs chi2 to fall to `target_chi2` (a trial that fails above it) lets
+  // the solve give up (kOutOfReach) once that cannot happen in the iterations left at the pace of
+  // the last accepted step: loops in conflict with the rest leave Gauss-Newton crawling far above
+  // any acceptable chi2. From the second iteration on; infinity (the default) never gives up.
   OptimizerSummary Solve(const PoseGraph<Pose>& graph,
                          const std::vector<char>& active,
-                         std::vector<Pose>* estimate);
+                         std::vector<Pose>* estimate,
+                         double target_chi2 = std::numeric_limits<double>::infinity());
 
   const OptimizerOptions& options() const { return options_; }
 

@@ -358,7 +358,7 @@ void WarmEngine<Pose>::Impl::JointTestAtScale(int q, StepResult* result) {
   while (true) {
     std::vector<int>& links = book->clusters[q].links;
     const std::vector<int> components = ComponentsOf(q);
-    const typename GoodSet<Pose>::Trial trial = good.Try(links, AlignmentCap());
+    const typename GoodSet<Pose>::Trial trial = good.Try(links, AlignmentCap(), MaxIncrease(links));
     if (!trial.ok) {
       for (int e : links) {
         book->Set(e,

@@ -190,6 +190,12 @@ struct WarmEngine<Pose>::Impl {
     return trial.ok && (trial.dof <= 0.0 || trial.increase < Threshold(trial.dof));
   }
 
+  // The largest increase IncreasePasses accepts from a trial of `links` within one component
+  // (Pose::kDim degrees of freedom a link): beyond it the trial gives up (GoodSet::Try).
+  double MaxIncrease(const std::vector<int>& links) const {
+    return Threshold(Pose::kDim * static_cast<double>(links.size()));
+  }
+
   void Accept(int q, std::vector<int>* changed);
 
   void JointTest(int q, StepResult* result);

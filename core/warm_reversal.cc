@@ -112,7 +112,8 @@ bool WarmEngine<Pose>::Impl::Replace(const std::vector<int>& suspects,
   good.RebuildKeeping(base_loops, AlignmentCap());
   std::vector<int> taken;
   auto take_if_passes = [&](int q) {
-    const typename GoodSet<Pose>::Trial trial = good.Try(book->clusters[q].links, AlignmentCap());
+    const std::vector<int>& links = book->clusters[q].links;
+    const typename GoodSet<Pose>::Trial trial = good.Try(links, AlignmentCap(), MaxIncrease(links));
     if (!trial.ok) return;
     if (!IncreasePasses(trial) || !Consistent(q)) {
       good.Rollback();

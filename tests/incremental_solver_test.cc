@@ -1,6 +1,7 @@
 #include "core/incremental_solver.h"
 
 #include <algorithm>
+#include <limits>
 #include <vector>
 
 #include <catch2/catch.hpp>
@@ -235,6 +236,50 @@ TEMPLATE_TEST_CASE("A trial whose batch solve does not settle it within its iter
   CHECK(settled.ok);
   CHECK(!cut.ok);
   CHECK(cut.message == "did not converge");
+}
+
+TEMPLATE_TEST_CASE("A trial fails as soon as its target chi2 is out of its batch solve's reach",
+                   "[incremental]",
+                   Pose2,
+                   Pose3) {
+  auto synthetic = MakeSyntheticGraph<TestType>(NoisyOptions<TestType>(6));
+  PoseGraph<TestType>& graph = synthetic.graph;
+  std::vector<char> use(graph.num_edges(), 1);
+  // The wrong loop of the test above, which sends the trial to its batch solve.
+  const int n = graph.num_vertices();
+  const int wrong = graph.num_edges();
+  typename TestType::Tangent far = TestType::Tangent::Zero();
+  far(0) = 30.0;
+  far(TestType::kDim - 1) = 3.0;
+  REQUIRE(
+      graph.AddLoop(0, n / 2, TestType().Retract(far), graph.edge(0).information, nullptr).ok());
+  use.push_back(0);
+  IncrementalSolverOptions options;
+  options.trial_batch_max_iterations = 100;
+  IncrementalSolver<TestType> solver(&graph, options);
+  FeedIncrementally(graph, &solver, use);
+  const double before = solver.chi2();
+  auto trial = [&](double target_chi2) {
+    solver.Checkpoint(target_chi2);
+    const IncrementalSummary summary = solver.Add({wrong});
+    solver.Rollback();
+    return summary;
+  };
+  const IncrementalSummary settled = trial(std::numeric_limits<double>::infinity());
+  REQUIRE(settled.ok);
+  const double increase = settled.chi2 - before;
+  REQUIRE(increase > 0.0);
+  // Half the increase it settles at: out of reach.
+  const IncrementalSummary cut = trial(before + 0.5 * increase);
+  INFO(settled.message << " / " << cut.message);
+  CHECK(!cut.ok);
+  CHECK(cut.message == "the trial's target chi2 is out of reach");
+  CHECK(solver.chi2() == before);  // rolled back
+  // Twice the increase: reached, as without a target (to the rounding a rollback leaves in the
+  // factor).
+  const IncrementalSummary reached = trial(before + 2.0 * increase);
+  CHECK(reached.ok);
+  CHECK(reached.chi2 == Approx(settled.chi2).epsilon(1e-9));
 }
 
 TEST_CASE("Reset starts from the given poses, anchored at the first", "[incremental]") {

@@ -390,5 +390,50 @@ TEST_CASE("Gauss-Newton never raises chi2, even where full steps diverge", "[opt
   }
 }
 
+TEST_CASE("A solve gives up on a target chi2 it cannot reach, and not on one it can",
+          "[optimizer]") {
+  // Wrong loops on a grid world solved from dead reckoning: Gauss-Newton lowers chi2 steeply, then
+  // crawls towards an optimum far above zero.
+  SyntheticOptions options;
+  options.num_poses = 300;
+  options.translation_sigma_m = 0.05;
+  options.rotation_sigma_rad = 0.02;
+  auto synthetic = MakeSyntheticGraph<Pose2>(options);
+  OutlierOptions outlier_options;
+  outlier_options.count = 20;
+  std::vector<OutlierLink<Pose2>> outliers;
+  REQUIRE(MakeOutliers(synthetic.graph, outlier_options, &outliers).ok());
+  for (const OutlierLink<Pose2>& link : outliers) {
+    REQUIRE(synthetic.graph.AddLoop(link.from, link.to, link.measurement, link.information, nullptr)
+                .ok());
+  }
+  const std::vector<char> active = AllActive(synthetic.graph.num_edges());
+  auto solve = [&](double target_chi2) {
+    Optimizer<Pose2> optimizer;
+    std::vector<Pose2> estimate = synthetic.graph.initial_estimate();
+    return optimizer.Solve(synthetic.graph, active, &estimate, target_chi2);
+  };
+  const OptimizerSummary full = solve(std::numeric_limits<double>::infinity());
+  REQUIRE(full.termination == TerminationType::kConvergence);
+  REQUIRE(full.iterations >= 4);
+
+  // Half the optimum: out of reach, found so before convergence, from the improved estimate.
+  const OptimizerSummary cut = solve(0.5 * full.final_chi2);
+  INFO(full.iterations << " iterations to " << full.final_chi2 << "; " << cut.iterations << " to "
+                       << cut.final_chi2 << ": " << cut.message);
+  CHECK(cut.termination == TerminationType::kOutOfReach);
+  CHECK(cut.IsSolutionUsable());
+  CHECK(cut.iterations >= 2);
+  CHECK(cut.iterations < full.iterations);
+  CHECK(cut.final_chi2 < cut.initial_chi2);
+  CHECK(cut.final_chi2 >= full.final_chi2 * (1.0 - 1e-6));
+
+  // Above the optimum: the solve is the one without a target, iterate for iterate.
+  const OptimizerSummary reached = solve(1.01 * full.final_chi2);
+  CHECK(reached.termination == TerminationType::kConvergence);
+  CHECK(reached.iterations == full.iterations);
+  CHECK(reached.final_chi2 == full.final_chi2);
+}
+
 }  // namespace
 }  // namespace irrr
