@@ -202,6 +202,24 @@ TEMPLATE_TEST_CASE("Removing loops returns to the optimum without them",
   CheckAtBatchOptimum(graph, active, solver, estimate);
 }
 
+// Adds a wrong loop and returns its edge: the first pose and one half way along said to be 30 m
+// and nearly a half turn apart (whatever they are), as certain as the odometry.
+template <class Pose>
+int AddFarWrongLoop(PoseGraph<Pose>* graph) {
+  const int wrong = graph->num_edges();
+  typename Pose::Tangent far = Pose::Tangent::Zero();
+  far(0) = 30.0;
+  far(Pose::kDim - 1) = 3.0;
+  REQUIRE(graph
+              ->AddLoop(0,
+                        graph->num_vertices() / 2,
+                        Pose().Retract(far),
+                        graph->edge(0).information,
+                        nullptr)
+              .ok());
+  return wrong;
+}
+
 TEMPLATE_TEST_CASE("A trial whose batch solve does not settle it within its iterations fails",
                    "[incremental]",
                    Pose2,
@@ -209,15 +227,7 @@ TEMPLATE_TEST_CASE("A trial whose batch solve does not settle it within its iter
   auto synthetic = MakeSyntheticGraph<TestType>(NoisyOptions<TestType>(6));
   PoseGraph<TestType>& graph = synthetic.graph;
   const std::vector<char> use(graph.num_edges(), 1);
-  // A wrong loop: the first pose and one half way along said to be 30 m and nearly a half turn
-  // apart (whatever they are), as certain as the odometry.
-  const int n = graph.num_vertices();
-  const int wrong = graph.num_edges();
-  typename TestType::Tangent far = TestType::Tangent::Zero();
-  far(0) = 30.0;
-  far(TestType::kDim - 1) = 3.0;
-  REQUIRE(
-      graph.AddLoop(0, n / 2, TestType().Retract(far), graph.edge(0).information, nullptr).ok());
+  const int wrong = AddFarWrongLoop(&graph);
   auto trial = [&](int batch_iterations) {
     IncrementalSolverOptions options;
     options.trial_batch_max_iterations = batch_iterations;
@@ -245,14 +255,8 @@ TEMPLATE_TEST_CASE("A trial fails as soon as its target chi2 is out of its batch
   auto synthetic = MakeSyntheticGraph<TestType>(NoisyOptions<TestType>(6));
   PoseGraph<TestType>& graph = synthetic.graph;
   std::vector<char> use(graph.num_edges(), 1);
-  // The wrong loop of the test above, which sends the trial to its batch solve.
-  const int n = graph.num_vertices();
-  const int wrong = graph.num_edges();
-  typename TestType::Tangent far = TestType::Tangent::Zero();
-  far(0) = 30.0;
-  far(TestType::kDim - 1) = 3.0;
-  REQUIRE(
-      graph.AddLoop(0, n / 2, TestType().Retract(far), graph.edge(0).information, nullptr).ok());
+  // The wrong loop sends the trial to its batch solve.
+  const int wrong = AddFarWrongLoop(&graph);
   use.push_back(0);
   IncrementalSolverOptions options;
   options.trial_batch_max_iterations = 100;

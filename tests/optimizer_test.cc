@@ -14,6 +14,7 @@ namespace {
 
 using testing::MakeSyntheticGraph;
 using testing::RelativeDifference;
+using testing::SyntheticGraph;
 using testing::SyntheticOptions;
 
 // Zero-noise graphs have an exact solution; Gauss-Newton reaches it to rounding.
@@ -21,6 +22,25 @@ constexpr double kExactToleranceM = 1e-9;
 constexpr double kExactToleranceRad = 1e-9;
 
 std::vector<char> AllActive(int num_edges) { return std::vector<char>(num_edges, 1); }
+
+// A noisy 300-pose grid world with 20 random wrong loops: from dead reckoning, full Gauss-Newton
+// steps overshoot, and the solve crawls towards an optimum far above zero.
+SyntheticGraph<Pose2> GridWithWrongLoops() {
+  SyntheticOptions options;
+  options.num_poses = 300;
+  options.translation_sigma_m = 0.05;
+  options.rotation_sigma_rad = 0.02;
+  SyntheticGraph<Pose2> synthetic = MakeSyntheticGraph<Pose2>(options);
+  OutlierOptions outlier_options;
+  outlier_options.count = 20;
+  std::vector<OutlierLink<Pose2>> outliers;
+  REQUIRE(MakeOutliers(synthetic.graph, outlier_options, &outliers).ok());
+  for (const OutlierLink<Pose2>& link : outliers) {
+    REQUIRE(synthetic.graph.AddLoop(link.from, link.to, link.measurement, link.information, nullptr)
+                .ok());
+  }
+  return synthetic;
+}
 
 // Ground truth moved by independent random errors per pose (not accumulated), far from the
 // solution but in its basin.
@@ -360,19 +380,7 @@ TEST_CASE("Gauss-Newton never raises chi2, even where full steps diverge", "[opt
   // Random wrong loops on a grid world, solved from dead reckoning: full Gauss-Newton steps
   // overshoot here (chi2 climbs by orders of magnitude); halved steps must keep every iterate at
   // or below the one before.
-  SyntheticOptions options;
-  options.num_poses = 300;
-  options.translation_sigma_m = 0.05;
-  options.rotation_sigma_rad = 0.02;
-  auto synthetic = MakeSyntheticGraph<Pose2>(options);
-  OutlierOptions outlier_options;
-  outlier_options.count = 20;
-  std::vector<OutlierLink<Pose2>> outliers;
-  REQUIRE(MakeOutliers(synthetic.graph, outlier_options, &outliers).ok());
-  for (const OutlierLink<Pose2>& link : outliers) {
-    REQUIRE(synthetic.graph.AddLoop(link.from, link.to, link.measurement, link.information, nullptr)
-                .ok());
-  }
+  const SyntheticGraph<Pose2> synthetic = GridWithWrongLoops();
   const std::vector<char> active = AllActive(synthetic.graph.num_edges());
   double previous_chi2 = std::numeric_limits<double>::infinity();
   for (int iterations = 1; iterations <= 30; ++iterations) {
@@ -392,21 +400,7 @@ TEST_CASE("Gauss-Newton never raises chi2, even where full steps diverge", "[opt
 
 TEST_CASE("A solve gives up on a target chi2 it cannot reach, and not on one it can",
           "[optimizer]") {
-  // Wrong loops on a grid world solved from dead reckoning: Gauss-Newton lowers chi2 steeply, then
-  // crawls towards an optimum far above zero.
-  SyntheticOptions options;
-  options.num_poses = 300;
-  options.translation_sigma_m = 0.05;
-  options.rotation_sigma_rad = 0.02;
-  auto synthetic = MakeSyntheticGraph<Pose2>(options);
-  OutlierOptions outlier_options;
-  outlier_options.count = 20;
-  std::vector<OutlierLink<Pose2>> outliers;
-  REQUIRE(MakeOutliers(synthetic.graph, outlier_options, &outliers).ok());
-  for (const OutlierLink<Pose2>& link : outliers) {
-    REQUIRE(synthetic.graph.AddLoop(link.from, link.to, link.measurement, link.information, nullptr)
-                .ok());
-  }
+  const SyntheticGraph<Pose2> synthetic = GridWithWrongLoops();
   const std::vector<char> active = AllActive(synthetic.graph.num_edges());
   auto solve = [&](double target_chi2) {
     Optimizer<Pose2> optimizer;
