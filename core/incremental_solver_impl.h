@@ -287,16 +287,16 @@ struct IncrementalSolver<Pose>::Impl {
       if (!ok) return false;
     }
     if (!reuse_analysis) {
-      permutation.clear();
-      permutation.reserve(n);
+      std::vector<int> perm;
+      perm.reserve(n);
       for (int s : order) {
-        for (int a = 0; a < d; ++a) permutation.push_back(s * d + a);
+        for (int a = 0; a < d; ++a) perm.push_back(s * d + a);
       }
       for (int s = used; s < capacity; ++s) {
-        for (int a = 0; a < d; ++a) permutation.push_back(s * d + a);
+        for (int a = 0; a < d; ++a) perm.push_back(s * d + a);
       }
       position.assign(n, 0);
-      for (int k = 0; k < n; ++k) position[permutation[k]] = k;
+      for (int k = 0; k < n; ++k) position[perm[k]] = k;
     }
 
     // P H P' at x_lin (upper triangle, in the factor's order), identity on the free places. Given
@@ -374,10 +374,10 @@ struct IncrementalSolver<Pose>::Impl {
            common.status == CHOLMOD_OK;
     }
     if (!ok) return false;
-    // The factor is of P H P': its permutation is ours, for the solves (updates and covariances
-    // work in the factor's order already).
+    // The factor is of P H P': its permutation is ours (the inverse of `position`), for the
+    // solves (updates and covariances work in the factor's order already).
     int* factor_order = static_cast<int*>(factor->Perm);
-    std::copy(permutation.begin(), permutation.end(), factor_order);
+    for (int k = 0; k < n; ++k) factor_order[position[k]] = k;
     factor->ordering = CHOLMOD_GIVEN;
     nonzeros_after_build = FactorNonzeros();
     modifications_since_check = 0;
@@ -673,8 +673,7 @@ struct IncrementalSolver<Pose>::Impl {
   cholmod_factor* symbolic = nullptr;
   long structure_version = 0;
   long analyzed_version = -1;
-  std::vector<int> position;     // per scalar variable: its row in the factor
-  std::vector<int> permutation;  // per row of the factor: its scalar variable
+  std::vector<int> position;  // per scalar variable: its row in the factor
   double nonzeros_after_build = 0.0;
   double rebuild_flops = 0.0;  // of the last factorization
   int modifications_since_check = 0;

@@ -220,6 +220,18 @@ int AddFarWrongLoop(PoseGraph<Pose>* graph) {
   return wrong;
 }
 
+// Tries `edge` in a trial that must end at most at `target_chi2`, rolls it back and returns what
+// the trial did.
+template <class Pose>
+IncrementalSummary TryAndRollBack(IncrementalSolver<Pose>* solver,
+                                  int edge,
+                                  double target_chi2 = std::numeric_limits<double>::infinity()) {
+  solver->Checkpoint(target_chi2);
+  const IncrementalSummary summary = solver->Add({edge});
+  solver->Rollback();
+  return summary;
+}
+
 TEMPLATE_TEST_CASE("A trial whose batch solve does not settle it within its iterations fails",
                    "[incremental]",
                    Pose2,
@@ -235,10 +247,7 @@ TEMPLATE_TEST_CASE("A trial whose batch solve does not settle it within its iter
     std::vector<char> all = use;
     all.push_back(0);
     FeedIncrementally(graph, &solver, all);
-    solver.Checkpoint();
-    const IncrementalSummary summary = solver.Add({wrong});
-    solver.Rollback();
-    return summary;
+    return TryAndRollBack(&solver, wrong);
   };
   const IncrementalSummary settled = trial(100);
   const IncrementalSummary cut = trial(1);
@@ -263,12 +272,7 @@ TEMPLATE_TEST_CASE("A trial fails as soon as its target chi2 is out of its batch
   IncrementalSolver<TestType> solver(&graph, options);
   FeedIncrementally(graph, &solver, use);
   const double before = solver.chi2();
-  auto trial = [&](double target_chi2) {
-    solver.Checkpoint(target_chi2);
-    const IncrementalSummary summary = solver.Add({wrong});
-    solver.Rollback();
-    return summary;
-  };
+  auto trial = [&](double target_chi2) { return TryAndRollBack(&solver, wrong, target_chi2); };
   const IncrementalSummary settled = trial(std::numeric_limits<double>::infinity());
   REQUIRE(settled.ok);
   const double increase = settled.chi2 - before;
