@@ -14,6 +14,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <functional>
 #include <limits>
 #include <map>
@@ -186,7 +187,10 @@ inline IrrrOptions CaseOptions() {
 inline const Case& IntelCase() {
   static const Case the_case = [] {
     Case c;
-    const std::string path = MakeTwoSessionIntel(TestDirectory("reliability_case"));
+    // Each test runs in a process of its own and CTest runs them in parallel: the folder is the
+    // process's, so that two tests building the case do not write the same files.
+    const std::string dir = TestDirectory("reliability_case_" + std::to_string(::getpid()));
+    const std::string path = MakeTwoSessionIntel(dir);
     GraphFile<Pose2> file;
     REQUIRE(LoadPoseGraph(
                 path, FileFormat::kG2o, ReadOptions(), &file, &c.graph, &c.graph_edge_of_file_edge)
@@ -194,6 +198,7 @@ inline const Case& IntelCase() {
     c.messages = ReplayMessages(c.graph, c.graph_edge_of_file_edge, 0);
     c.messages.push_back(FlushMessage());
     c.decisions = RunIncrementalIrrr(c.graph, CaseOptions(), &c.estimate, nullptr);
+    std::filesystem::remove_all(dir);
     return c;
   }();
   return the_case;
