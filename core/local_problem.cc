@@ -169,8 +169,24 @@ LocalSolution LocalProblems<Pose>::Solve(const std::vector<char>& sessions,
       spans = {{whole.session, whole.first, last_b}, {whole.session, first_a, whole.last}};
     }
   }
+  // The poses kept in each session: every pose of its spans, or with chains_ only the loops'
+  // endpoints (the odometry between two of them compounded into one edge).
+  const bool compound = chains_ != nullptr && estimate == nullptr;
+  std::vector<std::vector<int>> endpoints(num_sessions);
+  if (compound) {
+    for (int e : loops) {
+      for (int v : {graph.edge(e).from, graph.edge(e).to}) {
+        endpoints[graph.vertex(v).session].push_back(position(v));
+      }
+    }
+    for (std::vector<int>& p : endpoints) {
+      std::sort(p.begin(), p.end());
+      p.erase(std::unique(p.begin(), p.end()), p.end());
+    }
+  }
+  const typename Pose::Matrix M = TangentOfErrorVector<Pose>();
   PoseGraph<Pose> sub;
-  std::vector<int> graph_edge_of_sub;
+  std::vector<int> graph_edge_of_sub;  // -1 for a compounded stretch of odometry
   std::vector<int> sub_vertex(graph.num_vertices(), -1);
   std::vector<Pose> sub_x;
   for (size_t k_span = 0; k_span < spans.size(); ++k_span) {
@@ -178,21 +194,43 @@ LocalSolution LocalProblems<Pose>::Solve(const std::vector<char>& sessions,
     int sub_session = -1;
     IRRR_CHECK(sub.AddSession(static_cast<int64_t>(k_span), &sub_session).ok());
     const std::vector<int>& vertices = graph.session(span.session).vertices;
-    for (int k = span.first; k <= span.last; ++k) {
-      const int v = vertices[k];
-      const Edge<Pose>* odometry = nullptr;
-      if (k > span.first) {
+    std::vector<int> kept;
+    if (compound) {
+      for (int k : endpoints[span.session]) {
+        if (k >= span.first && k <= span.last) kept.push_back(k);
+      }
+    } else {
+      for (int k = span.first; k <= span.last; ++k) kept.push_back(k);
+    }
+    for (size_t j = 0; j < kept.size(); ++j) {
+      const int v = vertices[kept[j]];
+      Pose measurement;
+      typename Pose::Matrix information;
+      bool has_odometry = false;
+      if (j > 0 && kept[j] == kept[j - 1] + 1) {
         const int odometry_edge = graph.OdometryInto(v);
-        odometry = &graph.edge(odometry_edge);
+        measurement = graph.edge(odometry_edge).measurement;
+        information = graph.edge(odometry_edge).information;
+        has_odometry = true;
         graph_edge_of_sub.push_back(odometry_edge);
+      } else if (j > 0) {
+        // Right perturbation covariance C of the compounded dead reckoning; the residual (g2o's
+        // chart) reads xi = M r, so its information is M' C^-1 M.
+        const int u = vertices[kept[j - 1]];
+        measurement = (*dead_reckoning_)[u].Inverse() * (*dead_reckoning_)[v];
+        const typename Pose::Matrix C = chains_->Relative(span.session, kept[j - 1], kept[j]);
+        information = M.transpose() * C.inverse() * M;
+        information = 0.5 * (information + information.transpose()).eval();
+        has_odometry = true;
+        graph_edge_of_sub.push_back(-1);
       }
       int index = -1;
       IRRR_CHECK(sub.AddPose(sub_session,
                              v,
                              graph.vertex(v).stamp,
                              x[v],
-                             odometry ? &odometry->measurement : nullptr,
-                             odometry ? &odometry->information : nullptr,
+                             has_odometry ? &measurement : nullptr,
+                             has_odometry ? &information : nullptr,
                              &index)
                      .ok());
       sub_vertex[v] = index;
@@ -212,11 +250,12 @@ LocalSolution LocalProblems<Pose>::Solve(const std::vector<char>& sessions,
   LocalSolution solution;
   OptimizerSummary& summary = solution.summary;
   summary = optimizer_.Solve(sub, std::vector<char>(sub.num_edges(), 1), &sub_x);
+  solution.poses_optimized = sub.num_vertices();
   ++solves_;
   iterations_ += summary.iterations;
   std::vector<double> edge_chi2(graph.num_edges(), 0.0);
   for (size_t k = 0; k < graph_edge_of_sub.size(); ++k) {
-    edge_chi2[graph_edge_of_sub[k]] = summary.edge_chi2[k];
+    if (graph_edge_of_sub[k] >= 0) edge_chi2[graph_edge_of_sub[k]] = summary.edge_chi2[k];
   }
   summary.edge_chi2 = std::move(edge_chi2);
 

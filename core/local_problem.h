@@ -10,10 +10,13 @@
 // or after its last) has zero residual at the optimum, so only each session's span between its
 // first and last loop endpoint is optimized. The chi2 values and degrees of freedom returned are
 // those of the whole problem (every pose and odometry edge of the sessions involved), so the
-// paper's graph test means what the paper says.
+// paper's graph test means what the paper says. The warm engine also compounds the odometry
+// between consecutive loop endpoints into one edge each (CompoundChains); the paper engine
+// optimizes every pose of the spans.
 
 #include <vector>
 
+#include "core/odometry_covariance.h"
 #include "core/optimizer.h"
 #include "core/pose_graph.h"
 
@@ -24,6 +27,7 @@ struct LocalSolution {
   double chi2 = 0.0;         // D^2 at the optimum (summary.final_chi2)
   // Residual rows minus free parameters of the whole problem (sessions' odometry and the loops).
   double dof = 0.0;
+  int poses_optimized = 0;  // the poses of the problem actually solved (spans or loop endpoints)
   bool ok() const { return summary.IsSolutionUsable(); }
 };
 
@@ -46,6 +50,13 @@ class LocalProblems {
                       const std::vector<int>& loops,
                       double alignment_cap,
                       std::vector<Pose>* estimate = nullptr);
+  // With `chains` (over the same graph and dead reckoning, kept up to date by its owner), the
+  // odometry between two consecutive loop endpoints of a span is one edge: the dead reckoning
+  // between them with its compounded covariance. Exact for a linear problem (the stretch's
+  // interior poses are marginalized), to first order otherwise; the problem shrinks from the
+  // spans' poses to the loops' endpoints. Solves asked for an estimate keep every pose.
+  void CompoundChains(const OdometryCovariance<Pose>* chains) { chains_ = chains; }
+
   // The sessions the loops touch.
   std::vector<char> SessionsOf(const std::vector<int>& loops) const;
 
@@ -69,6 +80,7 @@ class LocalProblems {
 
   const PoseGraph<Pose>* graph_;
   const std::vector<Pose>* dead_reckoning_;
+  const OdometryCovariance<Pose>* chains_ = nullptr;
   Optimizer<Pose> optimizer_;
   // The last problem solved and its solution (a problem is often asked twice in a row).
   struct Last {

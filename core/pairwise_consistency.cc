@@ -19,45 +19,7 @@ constexpr size_t kSeeds = 8;
 template <class Pose>
 PairwiseConsistency<Pose>::PairwiseConsistency(const PoseGraph<Pose>* graph,
                                                const std::vector<Pose>* dead_reckoning)
-    : graph_(graph), dead_reckoning_(dead_reckoning) {}
-
-template <class Pose>
-void PairwiseConsistency<Pose>::Update() {
-  const PoseGraph<Pose>& graph = *graph_;
-  const Matrix M = TangentOfErrorVector<Pose>();
-  for (int v = static_cast<int>(prefix_.size()); v < graph.num_vertices(); ++v) {
-    const int odometry = graph.OdometryInto(v);
-    if (odometry < 0) {
-      prefix_.push_back(Matrix::Zero());
-      position_.push_back(0);
-      continue;
-    }
-    const int previous = graph.edge(odometry).from;
-    // Step k's noise, in the session's frame: Ad(x_k+1) M C M' Ad(x_k+1)'.
-    const Matrix adjoint = Adjoint((*dead_reckoning_)[v]) * M;
-    const Matrix covariance = graph.edge(odometry).information.inverse();
-    prefix_.push_back(prefix_[previous] + adjoint * covariance * adjoint.transpose());
-    position_.push_back(position_[previous] + 1);
-  }
-}
-
-template <class Pose>
-typename PairwiseConsistency<Pose>::Matrix PairwiseConsistency<Pose>::RelativeCovariance(
-    int session, int p, int q) const {
-  const std::vector<int>& vertices = graph_->session(session).vertices;
-  const std::vector<Pose>& x = *dead_reckoning_;
-  if (p == q) return Matrix::Zero();
-  const int first = std::min(p, q);
-  const int last = std::max(p, q);
-  // D(first -> last), perturbed on its right: Ad(x_last)^-1 (S_last - S_first) Ad(x_last)^-T.
-  const Matrix to_last = Adjoint(x[vertices[last]].Inverse());
-  const Matrix forward =
-      to_last * (prefix_[vertices[last]] - prefix_[vertices[first]]) * to_last.transpose();
-  if (p < q) return forward;
-  // D(p -> q) = D(q -> p)^-1: (T Exp(e))^-1 = T^-1 Exp(-Ad(T) e).
-  const Matrix adjoint = Adjoint(x[vertices[q]].Inverse() * x[vertices[p]]);
-  return adjoint * forward * adjoint.transpose();
-}
+    : graph_(graph), dead_reckoning_(dead_reckoning), odometry_(graph, dead_reckoning) {}
 
 template <class Pose>
 double PairwiseConsistency<Pose>::Statistic(int l, int m) const {
@@ -75,8 +37,9 @@ double PairwiseConsistency<Pose>::Statistic(int l, int m) const {
     const Edge<Pose>& edge = graph.edge(e);
     const Vertex& from = graph.vertex(edge.from);
     const Vertex& to = graph.vertex(edge.to);
-    const bool from_is_a = from.session != to.session ? from.session > to.session
-                                                      : position_[edge.from] >= position_[edge.to];
+    const bool from_is_a = from.session != to.session
+                               ? from.session > to.session
+                               : odometry_.Position(edge.from) >= odometry_.Position(edge.to);
     Oriented o;
     o.covariance = M * edge.information.inverse() * M.transpose();
     if (from_is_a) {
@@ -107,8 +70,10 @@ double PairwiseConsistency<Pose>::Statistic(int l, int m) const {
   const Matrix K_A = Adjoint(Z.Inverse());
   const Matrix K_L = -Adjoint(Z.Inverse() * A.Inverse() * L);
   const Matrix K_B = -Adjoint(Z.Inverse() * A.Inverse() * L * B);
-  const Matrix C_A = RelativeCovariance(session_a, position_[first.a], position_[second.a]);
-  const Matrix C_B = RelativeCovariance(session_b, position_[first.b], position_[second.b]);
+  const Matrix C_A =
+      odometry_.Relative(session_a, odometry_.Position(first.a), odometry_.Position(second.a));
+  const Matrix C_B =
+      odometry_.Relative(session_b, odometry_.Position(first.b), odometry_.Position(second.b));
   const Matrix covariance = K_A * C_A * K_A.transpose() + K_B * C_B * K_B.transpose() +
                             K_L * first.covariance * K_L.transpose() + second.covariance;
   const typename Pose::Tangent r = e.Log();

@@ -15,13 +15,14 @@
 // whose links agree with each other cannot hide in a long chain's slack, and one link that
 // contradicts the rest stands out against each of them.
 //
-// Odometry covariances come from prefix sums along each session's dead reckoning, so a pair costs
-// the same whatever the distance between its links.
+// Odometry covariances come from prefix sums along each session's dead reckoning
+// (OdometryCovariance), so a pair costs the same whatever the distance between its links.
 
 #include <vector>
 
 #include <Eigen/Core>
 
+#include "core/odometry_covariance.h"
 #include "core/pose_graph.h"
 
 namespace irrr {
@@ -36,7 +37,10 @@ class PairwiseConsistency {
   PairwiseConsistency(const PoseGraph<Pose>* graph, const std::vector<Pose>* dead_reckoning);
 
   // Extends the odometry prefix sums to every vertex of the graph.
-  void Update();
+  void Update() { odometry_.Update(); }
+
+  // The covariances of the dead reckoning it uses.
+  const OdometryCovariance<Pose>& odometry() const { return odometry_; }
 
   // The statistic of links l and m (graph edge indices, loops of one cluster: the same two
   // sessions, the same orientation of sides). Symmetric in l and m; 0 for l == m.
@@ -61,14 +65,9 @@ class PairwiseConsistency {
                                                   double threshold) const;
 
  private:
-  // The covariance of the relative dead reckoning from the p-th to the q-th pose of a session,
-  // as a perturbation on its right (D(p -> q) * Exp(xi)).
-  Matrix RelativeCovariance(int session, int p, int q) const;
-
   const PoseGraph<Pose>* graph_;
   const std::vector<Pose>* dead_reckoning_;
-  std::vector<Matrix> prefix_;  // per vertex: the sum of its session's odometry noise up to it
-  std::vector<int> position_;   // per vertex: its place in its session
+  OdometryCovariance<Pose> odometry_;
 };
 
 extern template class PairwiseConsistency<Pose2>;

@@ -40,7 +40,9 @@ struct WarmEngine<Pose>::Impl {
         estimate(e),
         problems(g, dead_reckoning, o->optimizer),
         pairwise(g, dead_reckoning),
-        good(g, e, IncrementalSolverOptions()) {}
+        good(g, e, IncrementalSolverOptions()) {
+    problems.CompoundChains(&pairwise.odometry());
+  }
 
   // ---- thresholds and the variance factor -------------------------------------------------
 
