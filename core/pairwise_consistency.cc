@@ -83,6 +83,19 @@ double PairwiseConsistency<Pose>::Statistic(int l, int m) const {
 }
 
 template <class Pose>
+const std::vector<double>& PairwiseConsistency<Pose>::Statistics(
+    const std::vector<int>& links) const {
+  if (links == last_links_) return last_statistics_;
+  const size_t n = links.size();
+  last_links_ = links;
+  last_statistics_.assign(n * n, 0.0);
+  for (size_t i = 0; i < n; ++i) {
+    for (size_t j = i + 1; j < n; ++j) last_statistics_[i * n + j] = Statistic(links[i], links[j]);
+  }
+  return last_statistics_;
+}
+
+template <class Pose>
 bool PairwiseConsistency<Pose>::Noiseless(const std::vector<int>& links, double tiny) const {
   for (size_t k = 1; k < links.size(); ++k) {
     if (!(Statistic(links.front(), links[k]) < tiny)) return false;
@@ -97,11 +110,12 @@ double PairwiseConsistency<Pose>::PairwiseFactor(const std::vector<int>& links) 
   const size_t pairs = n * (n - 1) / 2;
   if (n < 2) return 0.0;
   const size_t stride = std::max<size_t>(1, pairs / kFactorPairs);
+  const std::vector<double>& all = Statistics(links);
   std::vector<double> statistics;
   size_t index = 0;
   for (size_t i = 0; i < n; ++i) {
     for (size_t j = i + 1; j < n; ++j, ++index) {
-      if (index % stride == 0) statistics.push_back(Statistic(links[i], links[j]));
+      if (index % stride == 0) statistics.push_back(all[i * n + j]);
     }
   }
   auto middle = statistics.begin() + statistics.size() / 2;
@@ -113,10 +127,11 @@ template <class Pose>
 std::vector<std::vector<int>> PairwiseConsistency<Pose>::ConsistentSubsets(
     const std::vector<int>& links, double threshold) const {
   const int n = static_cast<int>(links.size());
+  const std::vector<double>& statistics = Statistics(links);
   std::vector<std::vector<char>> consistent(n, std::vector<char>(n, 1));
   for (int i = 0; i < n; ++i) {
     for (int j = i + 1; j < n; ++j) {
-      consistent[i][j] = consistent[j][i] = Statistic(links[i], links[j]) < threshold ? 1 : 0;
+      consistent[i][j] = consistent[j][i] = statistics[i * n + j] < threshold ? 1 : 0;
     }
   }
   std::vector<std::vector<int>> subsets;

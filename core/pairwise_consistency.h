@@ -65,9 +65,16 @@ class PairwiseConsistency {
                                                   double threshold) const;
 
  private:
+  // Statistic(links[i], links[j]) at [i * n + j] for i < j, remembered for the last `links`:
+  // a cluster's pairs are asked for by its factor, its calibration and Algorithm 1 in turn. A
+  // pair's statistic reads only its two links and the dead reckoning, which never change.
+  const std::vector<double>& Statistics(const std::vector<int>& links) const;
+
   const PoseGraph<Pose>* graph_;
   const std::vector<Pose>* dead_reckoning_;
   OdometryCovariance<Pose> odometry_;
+  mutable std::vector<int> last_links_;
+  mutable std::vector<double> last_statistics_;
 };
 
 extern template class PairwiseConsistency<Pose2>;
