@@ -24,10 +24,13 @@ namespace incremental_internal {
 constexpr int kMinSpare = 64;
 // The factor's size is checked against refill_ratio after this many modifications.
 constexpr int kFillCheckInterval = 32;
-// A rank-1 update's cost per factor entry on its path, in flops of a factorization (measured on
-// Manhattan and City10000: about 0.6 ns against 1.5 ns per flop of a simplicial factorization,
-// and a rebuild also orders and linearizes).
-constexpr double kUpdateCostRatio = 0.5;
+// A rank-1 update's cost per factor entry on its path, in flops of a factorization. Updates run
+// on a simplicial factor; rebuilds of larger or 3D problems (City10000, Sphere2500) on a
+// supernodal one (BLAS), whose flops are cheaper;
+// measured over 0.5, 1, 2 and 4 (Manhattan + 100, City10000 + 1000 and Sphere2500 + 100 random
+// wrong loops, CPU s): 0.5 gave 1.01 / 34.7 / 8.6 s, 1 0.88 / 30.6 / 5.8, 2 0.90 / 31.8 / 5.8,
+// 4 0.90 / 34.8 / 4.9, the same decisions throughout.
+constexpr double kUpdateCostRatio = 2.0;
 // Optimize turns to a batch solve after this many iterations in a row whose model chi2 rose by
 // more than kRiseTolerance (relative): Gauss-Newton's full steps going astray.
 constexpr int kMaxRises = 3;
