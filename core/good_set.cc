@@ -161,9 +161,10 @@ std::vector<int> GoodSet<Pose>::Components() const {
 }
 
 template <class Pose>
-Eigen::MatrixXd GoodSet<Pose>::Covariance(const std::vector<int>& vertices) const {
-  IRRR_CHECK(!vertices.empty());
-  return impl_->SolverOfVertex(vertices.front())->Covariance(vertices);
+std::vector<Eigen::MatrixXd> GoodSet<Pose>::Covariances(
+    const std::vector<std::vector<int>>& sets) const {
+  IRRR_CHECK(!sets.empty() && !sets.front().empty());
+  return impl_->SolverOfVertex(sets.front().front())->Covariances(sets);
 }
 
 namespace {
@@ -171,49 +172,33 @@ namespace {
 // For groups of loops whose ends lie in one component of `good` (its open trial's, during one):
 // visit(k, ends, sigma) with group k's end poses (in the order its loops name them, each once)
 // and their joint marginal covariance. Groups of at most kLinearizeChunk loops together (a larger
-// one alone) share one covariance recovery.
+// one alone) share one covariance recovery; each group's covariance is of its own ends only.
 template <class Pose, class Visit>
 void ForEachJointCovariance(const GoodSet<Pose>& good,
                             const PoseGraph<Pose>& graph,
                             const std::vector<std::vector<int>>& groups,
                             Visit visit) {
-  constexpr int d = Pose::kDim;
   for (size_t first = 0; first < groups.size();) {
     size_t last = first;
     size_t loops = 0;
-    std::vector<int> vertices;
     while (last < groups.size() &&
            (last == first || loops + groups[last].size() <= kLinearizeChunk)) {
-      for (int e : groups[last]) {
-        vertices.push_back(graph.edge(e).from);
-        vertices.push_back(graph.edge(e).to);
-      }
       loops += groups[last].size();
       ++last;
     }
-    std::sort(vertices.begin(), vertices.end());
-    vertices.erase(std::unique(vertices.begin(), vertices.end()), vertices.end());
-    const Eigen::MatrixXd covariance = good.Covariance(vertices);
+    std::vector<std::vector<int>> ends(last - first);
     for (size_t k = first; k < last; ++k) {
-      std::vector<int> ends;
       for (int e : groups[k]) {
         for (int v : {graph.edge(e).from, graph.edge(e).to}) {
-          if (std::find(ends.begin(), ends.end(), v) == ends.end()) ends.push_back(v);
+          std::vector<int>& group_ends = ends[k - first];
+          if (std::find(group_ends.begin(), group_ends.end(), v) == group_ends.end()) {
+            group_ends.push_back(v);
+          }
         }
       }
-      std::vector<int> index;
-      for (int v : ends) {
-        index.push_back(static_cast<int>(std::lower_bound(vertices.begin(), vertices.end(), v) -
-                                         vertices.begin()));
-      }
-      Eigen::MatrixXd sigma(d * ends.size(), d * ends.size());
-      for (size_t a = 0; a < ends.size(); ++a) {
-        for (size_t b = 0; b < ends.size(); ++b) {
-          sigma.block(a * d, b * d, d, d) = covariance.block(index[a] * d, index[b] * d, d, d);
-        }
-      }
-      visit(k, ends, sigma);
     }
+    const std::vector<Eigen::MatrixXd> sigma = good.Covariances(ends);
+    for (size_t k = first; k < last; ++k) visit(k, ends[k - first], sigma[k - first]);
     first = last;
   }
 }

@@ -46,9 +46,9 @@ class GoodSet {
   // Every session's component, numbered 0, 1, ... by earliest session.
   std::vector<int> Components() const;
 
-  // The joint marginal covariance of poses of one component (IncrementalSolver::Covariance), that
-  // of the open trial's if they are in it.
-  Eigen::MatrixXd Covariance(const std::vector<int>& vertices) const;
+  // The joint marginal covariance of each set of poses, all of one component
+  // (IncrementalSolver::Covariances), that of the open trial's if they are in it.
+  std::vector<Eigen::MatrixXd> Covariances(const std::vector<std::vector<int>>& sets) const;
   // Each loop's linearized addition alone (LinearizeAddition: its chi2 increase and redundancy
   // number) at the estimate, its ends in one component: the marginal covariance of its end poses
   // from the factorization, a few sparse solves per 32 loops. Not during a trial.

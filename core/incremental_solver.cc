@@ -280,7 +280,13 @@ bool IncrementalSolver<Pose>::InTrial() const {
 
 template <class Pose>
 Eigen::MatrixXd IncrementalSolver<Pose>::Covariance(const std::vector<int>& vertices) const {
-  return impl_->Covariance(vertices);
+  return impl_->Covariances({vertices}).front();
+}
+
+template <class Pose>
+std::vector<Eigen::MatrixXd> IncrementalSolver<Pose>::Covariances(
+    const std::vector<std::vector<int>>& sets) const {
+  return impl_->Covariances(sets);
 }
 
 template <class Pose>

@@ -123,6 +123,9 @@ class IncrementalSolver {
   // has zero rows and columns. The information matrices as given: a caller with a variance
   // factor scales it.
   Eigen::MatrixXd Covariance(const std::vector<int>& vertices) const;
+  // The joint marginal covariance of each set of vertices, as Covariance would give it, from one
+  // recovery for their union: each set costs the products of its own columns, not the union's.
+  std::vector<Eigen::MatrixXd> Covariances(const std::vector<std::vector<int>>& sets) const;
 
   bool Contains(int vertex) const;
   int anchor() const;

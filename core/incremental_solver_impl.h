@@ -593,9 +593,12 @@ struct IncrementalSolver<Pose>::Impl {
 
   // ---- covariance --------------------------------------------------------------------------
 
-  Eigen::MatrixXd Covariance(const std::vector<int>& query) const {
+  std::vector<Eigen::MatrixXd> Covariances(const std::vector<std::vector<int>>& sets) const {
+    std::vector<int> query;  // the union of the sets
+    for (const std::vector<int>& set : sets) query.insert(query.end(), set.begin(), set.end());
+    std::sort(query.begin(), query.end());
+    query.erase(std::unique(query.begin(), query.end()), query.end());
     const int m = static_cast<int>(query.size());
-    Eigen::MatrixXd covariance = Eigen::MatrixXd::Zero(d * m, d * m);
     const int* Lp = static_cast<const int*>(factor->p);
     const int* Li = static_cast<const int*>(factor->i);
     const int* Lnz = static_cast<const int*>(factor->nz);
@@ -621,7 +624,8 @@ struct IncrementalSolver<Pose>::Impl {
     std::sort(columns.begin(), columns.end());
     row_of.resize(factor->n, -1);
     for (size_t k = 0; k < columns.size(); ++k) row_of[columns[k]] = static_cast<int>(k);
-    // Y = L^-1 P [e_i ...] on those rows, then covariance = Y' D^-1 Y.
+    // Y = L^-1 P [e_i ...] on those rows; a set's covariance is Y_set' D^-1 Y_set, with Y_set its
+    // vertices' columns of Y.
     RowMajorMatrix Y = RowMajorMatrix::Zero(columns.size(), d * m);
     for (int c = 0; c < d * m; ++c) {
       if (starts[c] >= 0) Y(row_of[starts[c]], c) = 1.0;
@@ -634,12 +638,22 @@ struct IncrementalSolver<Pose>::Impl {
       const auto yj = Y.row(k);
       for (int q = p + 1; q < p + Lnz[j]; ++q) Y.row(row_of[Li[q]]) -= Lx[q] * yj;
     }
-    covariance = Y.transpose() * inverse_d.asDiagonal() * Y;
     for (int j : columns) {
       mark[j] = 0;
       row_of[j] = -1;
     }
-    return covariance;
+    std::vector<Eigen::MatrixXd> covariances;
+    for (const std::vector<int>& set : sets) {
+      const int n = static_cast<int>(set.size());
+      Eigen::MatrixXd Y_set(columns.size(), d * n);
+      for (int k = 0; k < n; ++k) {
+        const int u =
+            static_cast<int>(std::lower_bound(query.begin(), query.end(), set[k]) - query.begin());
+        Y_set.middleCols(k * d, d) = Y.middleCols(u * d, d);
+      }
+      covariances.push_back(Y_set.transpose() * inverse_d.asDiagonal() * Y_set);
+    }
+    return covariances;
   }
 
   const PoseGraph<Pose>* graph;

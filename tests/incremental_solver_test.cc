@@ -116,13 +116,20 @@ TEMPLATE_TEST_CASE("Marginal covariances equal the inverse of J'WJ at the estima
   const std::vector<std::vector<int>> queries = {
       {n - 1}, {0, n / 2}, {n / 3, n - 2, 5}, {17, 18, 19, 250}};
   auto check = [&](double tolerance) {
-    for (const std::vector<int>& query : queries) {
+    // Each query alone, and all of them from one recovery (Covariances).
+    const std::vector<Eigen::MatrixXd> together = solver.Covariances(queries);
+    REQUIRE(together.size() == queries.size());
+    for (size_t k = 0; k < queries.size(); ++k) {
+      const std::vector<int>& query = queries[k];
       Eigen::MatrixXd expected;
       REQUIRE(reference.Covariance(query, &expected));
       const Eigen::MatrixXd covariance = solver.Covariance(query);
       INFO("query of " << query.size() << " poses, largest entry "
                        << expected.cwiseAbs().maxCoeff());
       CHECK((covariance - expected).cwiseAbs().maxCoeff() <=
+            tolerance * expected.cwiseAbs().maxCoeff());
+      REQUIRE(together[k].rows() == covariance.rows());
+      CHECK((together[k] - expected).cwiseAbs().maxCoeff() <=
             tolerance * expected.cwiseAbs().maxCoeff());
     }
   };
