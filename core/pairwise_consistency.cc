@@ -22,41 +22,41 @@ PairwiseConsistency<Pose>::PairwiseConsistency(const PoseGraph<Pose>* graph,
     : graph_(graph), dead_reckoning_(dead_reckoning), odometry_(graph, dead_reckoning) {}
 
 template <class Pose>
+typename PairwiseConsistency<Pose>::Oriented PairwiseConsistency<Pose>::Orient(int e) const {
+  const PoseGraph<Pose>& graph = *graph_;
+  const Matrix M = TangentOfErrorVector<Pose>();
+  const Edge<Pose>& edge = graph.edge(e);
+  const Vertex& from = graph.vertex(edge.from);
+  const Vertex& to = graph.vertex(edge.to);
+  const bool from_is_a = from.session != to.session
+                             ? from.session > to.session
+                             : odometry_.Position(edge.from) >= odometry_.Position(edge.to);
+  Oriented o;
+  o.covariance = M * edge.information.inverse() * M.transpose();
+  if (from_is_a) {
+    o.a = edge.from;
+    o.b = edge.to;
+    o.z = edge.measurement;
+  } else {
+    o.a = edge.to;
+    o.b = edge.from;
+    o.z = edge.measurement.Inverse();
+    const Matrix adjoint = Adjoint(edge.measurement);
+    o.covariance = adjoint * o.covariance * adjoint.transpose();
+  }
+  return o;
+}
+
+template <class Pose>
 double PairwiseConsistency<Pose>::Statistic(int l, int m) const {
   if (l == m) return 0.0;
+  return Statistic(Orient(l), Orient(m));
+}
+
+template <class Pose>
+double PairwiseConsistency<Pose>::Statistic(const Oriented& first, const Oriented& second) const {
   const PoseGraph<Pose>& graph = *graph_;
   const std::vector<Pose>& x = *dead_reckoning_;
-  const Matrix M = TangentOfErrorVector<Pose>();
-  struct Oriented {
-    int a = -1;  // the end on side A (the higher session, or the later pose of one session)
-    int b = -1;
-    Pose z;             // x_a^-1 x_b as measured
-    Matrix covariance;  // of z, as a perturbation on its right
-  };
-  auto orient = [&](int e) {
-    const Edge<Pose>& edge = graph.edge(e);
-    const Vertex& from = graph.vertex(edge.from);
-    const Vertex& to = graph.vertex(edge.to);
-    const bool from_is_a = from.session != to.session
-                               ? from.session > to.session
-                               : odometry_.Position(edge.from) >= odometry_.Position(edge.to);
-    Oriented o;
-    o.covariance = M * edge.information.inverse() * M.transpose();
-    if (from_is_a) {
-      o.a = edge.from;
-      o.b = edge.to;
-      o.z = edge.measurement;
-    } else {
-      o.a = edge.to;
-      o.b = edge.from;
-      o.z = edge.measurement.Inverse();
-      const Matrix adjoint = Adjoint(edge.measurement);
-      o.covariance = adjoint * o.covariance * adjoint.transpose();
-    }
-    return o;
-  };
-  const Oriented first = orient(l);
-  const Oriented second = orient(m);
   const int session_a = graph.vertex(first.a).session;
   const int session_b = graph.vertex(first.b).session;
   IRRR_CHECK(graph.vertex(second.a).session == session_a &&
@@ -67,9 +67,11 @@ double PairwiseConsistency<Pose>::Statistic(int l, int m) const {
   const Pose& L = first.z;
   const Pose& Z = second.z;
   const Pose e = B.Inverse() * L.Inverse() * A * Z;
-  const Matrix K_A = Adjoint(Z.Inverse());
-  const Matrix K_L = -Adjoint(Z.Inverse() * A.Inverse() * L);
-  const Matrix K_B = -Adjoint(Z.Inverse() * A.Inverse() * L * B);
+  const Pose Z_inverse = Z.Inverse();
+  const Pose to_L = Z_inverse * A.Inverse() * L;
+  const Matrix K_A = Adjoint(Z_inverse);
+  const Matrix K_L = -Adjoint(to_L);
+  const Matrix K_B = -Adjoint(to_L * B);
   const Matrix C_A =
       odometry_.Relative(session_a, odometry_.Position(first.a), odometry_.Position(second.a));
   const Matrix C_B =
@@ -89,8 +91,13 @@ const std::vector<double>& PairwiseConsistency<Pose>::Statistics(
   const size_t n = links.size();
   last_links_ = links;
   last_statistics_.assign(n * n, 0.0);
+  std::vector<Oriented> oriented;
+  for (int e : links) oriented.push_back(Orient(e));
   for (size_t i = 0; i < n; ++i) {
-    for (size_t j = i + 1; j < n; ++j) last_statistics_[i * n + j] = Statistic(links[i], links[j]);
+    for (size_t j = i + 1; j < n; ++j) {
+      last_statistics_[i * n + j] =
+          links[i] == links[j] ? 0.0 : Statistic(oriented[i], oriented[j]);
+    }
   }
   return last_statistics_;
 }

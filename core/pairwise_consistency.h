@@ -65,6 +65,16 @@ class PairwiseConsistency {
                                                   double threshold) const;
 
  private:
+  // A link oriented from side A to side B.
+  struct Oriented {
+    int a = -1;  // the end on side A (the higher session, or the later pose of one session)
+    int b = -1;
+    Pose z;             // x_a^-1 x_b as measured
+    Matrix covariance;  // of z, as a perturbation on its right
+  };
+  Oriented Orient(int e) const;
+  double Statistic(const Oriented& first, const Oriented& second) const;
+
   // Statistic(links[i], links[j]) at [i * n + j] for i < j, remembered for the last `links`:
   // a cluster's pairs are asked for by its factor, its calibration and Algorithm 1 in turn. A
   // pair's statistic reads only its two links and the dead reckoning, which never change.
