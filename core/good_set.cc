@@ -188,9 +188,9 @@ void ForEachJointCovariance(const GoodSet<Pose>& good,
     }
     std::vector<std::vector<int>> ends(last - first);
     for (size_t k = first; k < last; ++k) {
+      std::vector<int>& group_ends = ends[k - first];
       for (int e : groups[k]) {
         for (int v : {graph.edge(e).from, graph.edge(e).to}) {
-          std::vector<int>& group_ends = ends[k - first];
           if (std::find(group_ends.begin(), group_ends.end(), v) == group_ends.end()) {
             group_ends.push_back(v);
           }
