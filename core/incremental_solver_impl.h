@@ -26,10 +26,9 @@ constexpr int kMinSpare = 64;
 constexpr int kFillCheckInterval = 32;
 // A rank-1 update's cost per factor entry on its path, in flops of a factorization. Updates run
 // on a simplicial factor; rebuilds of larger or 3D problems (City10000, Sphere2500) on a
-// supernodal one (BLAS), whose flops are cheaper;
-// measured over 0.5, 1, 2 and 4 (Manhattan + 100, City10000 + 1000 and Sphere2500 + 100 random
-// wrong loops, CPU s): 0.5 gave 1.01 / 34.7 / 8.6 s, 1 0.88 / 30.6 / 5.8, 2 0.90 / 31.8 / 5.8,
-// 4 0.90 / 34.8 / 4.9, the same decisions throughout.
+// supernodal one (BLAS), whose flops are cheaper. Measured over 0.5, 1, 2 and 4 (Manhattan + 100,
+// City10000 + 1000 and Sphere2500 + 100 random wrong loops, CPU s): 0.5 gave 1.01 / 34.7 / 8.6 s,
+// 1 0.88 / 30.6 / 5.8, 2 0.90 / 31.8 / 5.8, 4 0.90 / 34.8 / 4.9, the same decisions throughout.
 constexpr double kUpdateCostRatio = 2.0;
 // Optimize turns to a batch solve after this many iterations in a row whose model chi2 rose by
 // more than kRiseTolerance (relative): Gauss-Newton's full steps going astray.
@@ -290,16 +289,15 @@ struct IncrementalSolver<Pose>::Impl {
       if (!ok) return false;
     }
     if (!reuse_analysis) {
-      std::vector<int> perm;
-      perm.reserve(n);
+      // Each pose's variables in the AMD order of the poses, the free places last.
+      position.assign(n, 0);
+      int row = 0;
       for (int s : order) {
-        for (int a = 0; a < d; ++a) perm.push_back(s * d + a);
+        for (int a = 0; a < d; ++a) position[s * d + a] = row++;
       }
       for (int s = used; s < capacity; ++s) {
-        for (int a = 0; a < d; ++a) perm.push_back(s * d + a);
+        for (int a = 0; a < d; ++a) position[s * d + a] = row++;
       }
-      position.assign(n, 0);
-      for (int k = 0; k < n; ++k) position[perm[k]] = k;
     }
 
     // P H P' at x_lin (upper triangle, in the factor's order), identity on the free places. Given
