@@ -48,11 +48,13 @@ struct JudgedCluster {
   bool held = false;       // warm engine: waits until the good set can check it
   // Warm engine: the good clusters it fell against while they were inconsistent too (Algorithm
   // 2's reversal), its Algorithm 1 redundancy (chi2 and degrees of freedom at its local optimum,
-  // for the variance factor), and the variance factor it was accepted at.
+  // for the variance factor), the clusters' variance factor when it was accepted, and the factor
+  // its links were last refused at (0: none refused).
   std::vector<int> opponents;
   double redundancy_chi2 = 0.0;
   double redundancy_dof = 0.0;
   double accepted_variance = 0.0;
+  double refused_variance = 0.0;
 };
 
 // The decisions and clusters of one graph, with the step that changes them.

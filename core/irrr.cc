@@ -290,7 +290,10 @@ Status Irrr<Pose>::RestoreStepState(IrrrStepState<Pose> state) {
     for (int k : cluster.opponents) {
       if (!fits(k, num_clusters)) return Status::Error("a cluster names an unknown opponent");
     }
-    for (double v : {cluster.redundancy_chi2, cluster.redundancy_dof, cluster.accepted_variance}) {
+    for (double v : {cluster.redundancy_chi2,
+                     cluster.redundancy_dof,
+                     cluster.accepted_variance,
+                     cluster.refused_variance}) {
       if (!(v >= 0.0) || !std::isfinite(v)) {
         return Status::Error(
             "a cluster's redundancy or variance factor is not a finite number >= 0");

@@ -57,14 +57,19 @@ struct WarmEngine<Pose>::Impl {
   struct Scale {
     bool known = false;
     double variance = 1.0;  // the factor the tests use
+    double clusters = 1.0;  // the clusters' median alone (at most 1)
     double estimate = 1.0;  // the factor the data gave (before the cap at 1)
     double dof = std::numeric_limits<double>::infinity();
   };
 
   // A fixed factor from the options (known exactly); else the dof-weighted median over Algorithm
   // 1's clusters of two or more links that are not rejected (robust to a minority of wrong ones),
-  // known once enough redundancy is seen; never above 1.
+  // known once enough redundancy is seen, or the good set's own factor if that is larger; never
+  // above 1.
   Scale CurrentScale() const;
+  // The good set's redundancy: its chi2 at the optimum and its degrees of freedom (residual rows
+  // minus free parameters: d per loop, less d per session beyond the first of each component).
+  RedundancySample GoodSetRedundancy() const;
 
   void EstimateVarianceFactor();
 
@@ -218,10 +223,16 @@ struct WarmEngine<Pose>::Impl {
 
   // ---- Algorithm 2's reversal and recovery (core/warm_reversal.cc) -------------------------
 
-  // Reversing: good clusters accepted under a variance factor more than kRevalidateRatio times
-  // the current one (early, on little evidence of the noise) leave the good set together and are
-  // judged again at the current factor (Rejudge).
+  // Reversing: good clusters accepted while the clusters' factor was more than kRevalidateRatio
+  // times the current one (early, on little evidence of the noise) leave the good set together
+  // and are judged again at the current factor (Rejudge).
   void Revalidate(StepResult* result);
+
+  // Recovering at a larger factor: clusters refused while the variance factor was more than
+  // kRefusedRatio times smaller than today's are judged again (Rejudge). Refusals are recorded by
+  // NoteRefusals at the end of each step.
+  void RejudgeRefused(StepResult* result);
+  void NoteRefusals(const std::vector<int>& changed);
 
   // Recovering: clusters that have left the good set get back every link they held when they
   // closed and are judged again against the good set as it is now; their links that were
@@ -273,6 +284,9 @@ struct WarmEngine<Pose>::Impl {
   PairwiseConsistency<Pose> pairwise;
   GoodSet<Pose> good;
   double variance = 1.0;  // the factor of the tests (the estimate, at most 1)
+  // The clusters' median alone (at most 1): a good cluster accepted under one more than
+  // kRevalidateRatio times it is judged again (Revalidate).
+  double clusters_variance = 1.0;
   // A cluster with redundancy enough of its own is judged at a larger factor (JointTest); 0: none.
   double test_variance = 0.0;
   double variance_estimate = 1.0;

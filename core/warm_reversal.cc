@@ -11,6 +11,10 @@ namespace {
 
 // A good cluster accepted under a factor more than this many times today's is judged again.
 constexpr double kRevalidateRatio = 2.0;
+// Clusters refused while the variance factor was more than this many times smaller than today's
+// are judged again (RejudgeRefused): KITTI 05's factor rises from 0.16 to 0.28 as loops are
+// accepted, and two true links refused at 0.19 pass at 0.28.
+constexpr double kRefusedRatio = 1.2;
 // Clusters that challenge good ones at once (Challenge), largest first.
 constexpr size_t kMaxChallengers = 8;
 
@@ -21,13 +25,42 @@ void WarmEngine<Pose>::Impl::Revalidate(StepResult* result) {
   std::vector<int> suspects;
   for (int g = 0; g < static_cast<int>(book->clusters.size()); ++g) {
     const JudgedCluster& c = book->clusters[g];
-    if (c.in_good && c.accepted_variance > kRevalidateRatio * variance) suspects.push_back(g);
+    if (c.in_good && c.accepted_variance > kRevalidateRatio * clusters_variance) {
+      suspects.push_back(g);
+    }
   }
   if (suspects.empty()) return;
   for (int g : suspects) book->clusters[g].in_good = false;
   good.Rebuild(GoodLoops(), AlignmentCap());
   Rejudge(suspects, result);
   result->reversals += static_cast<int>(suspects.size());
+}
+
+template <class Pose>
+void WarmEngine<Pose>::Impl::RejudgeRefused(StepResult* result) {
+  std::vector<int> refused;
+  for (int q = 0; q < static_cast<int>(book->clusters.size()); ++q) {
+    JudgedCluster& c = book->clusters[q];
+    if (c.in_good || c.held || !(c.refused_variance > 0.0) ||
+        !(variance > kRefusedRatio * c.refused_variance)) {
+      continue;
+    }
+    c.refused_variance = variance;
+    refused.push_back(q);
+  }
+  if (!refused.empty()) Rejudge(refused, result);
+}
+
+template <class Pose>
+void WarmEngine<Pose>::Impl::NoteRefusals(const std::vector<int>& changed) {
+  for (int e : changed) {
+    const LoopDecision& decision = book->decisions[e];
+    const bool refused = decision.state == LoopState::kRejectedLinkTest ||
+                         decision.state == LoopState::kRejectedClusterTest ||
+                         decision.state == LoopState::kRejectedJointTest;
+    if (refused && decision.cluster >= 0)
+      book->clusters[decision.cluster].refused_variance = variance;
+  }
 }
 
 template <class Pose>
@@ -222,6 +255,8 @@ void WarmEngine<Pose>::Impl::Recover(int since,
 // Judge, JointTest and the rest are instantiated with the engine (core/warm_engine.cc).
 #define IRRR_INSTANTIATE_REVERSAL(Pose)                                                        \
   template void WarmEngine<Pose>::Impl::Revalidate(StepResult*);                               \
+  template void WarmEngine<Pose>::Impl::RejudgeRefused(StepResult*);                           \
+  template void WarmEngine<Pose>::Impl::NoteRefusals(const std::vector<int>&);                 \
   template void WarmEngine<Pose>::Impl::Rejudge(std::vector<int>, StepResult*);                \
   template void WarmEngine<Pose>::Impl::Challenge(                                             \
       const std::vector<int>&, const std::vector<int>&, StepResult*);                          \
