@@ -229,8 +229,9 @@ struct WarmEngine<Pose>::Impl {
   void Revalidate(StepResult* result);
 
   // Recovering at a larger factor: clusters refused while the variance factor was more than
-  // kRefusedRatio times smaller than today's are judged again (Rejudge). Refusals are recorded by
-  // NoteRefusals at the end of each step.
+  // kRefusedRatio times smaller than today's, one of whose refused links would pass its test at
+  // today's, are judged again (Rejudge). Refusals are recorded by NoteRefusals at the end of each
+  // step.
   void RejudgeRefused(StepResult* result);
   void NoteRefusals(const std::vector<int>& changed);
 

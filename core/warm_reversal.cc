@@ -18,6 +18,11 @@ constexpr double kRefusedRatio = 1.2;
 // Clusters that challenge good ones at once (Challenge), largest first.
 constexpr size_t kMaxChallengers = 8;
 
+bool IsRefusal(LoopState state) {
+  return state == LoopState::kRejectedLinkTest || state == LoopState::kRejectedClusterTest ||
+         state == LoopState::kRejectedJointTest;
+}
+
 }  // namespace
 
 template <class Pose>
@@ -38,14 +43,29 @@ void WarmEngine<Pose>::Impl::Revalidate(StepResult* result) {
 
 template <class Pose>
 void WarmEngine<Pose>::Impl::RejudgeRefused(StepResult* result) {
+  const int n = static_cast<int>(book->clusters.size());
+  std::vector<char> risen(n, 0);
+  bool any = false;
+  for (int q = 0; q < n; ++q) {
+    const JudgedCluster& c = book->clusters[q];
+    risen[q] = !c.in_good && !c.held && c.refused_variance > 0.0 &&
+               variance > kRefusedRatio * c.refused_variance;
+    any = any || risen[q];
+  }
+  if (!any) return;
+  // Only a cluster one of whose refused links would pass the test that refused it, its threshold
+  // scaled by the rise, is judged again: wrong links stand tens to millions of times above theirs.
+  std::vector<char> may_pass(n, 0);
+  for (const LoopDecision& decision : book->decisions) {
+    const int q = decision.cluster;
+    if (q < 0 || !risen[q] || !IsRefusal(decision.state)) continue;
+    const double rise = variance / book->clusters[q].refused_variance;
+    if (decision.chi2 < decision.threshold * rise) may_pass[q] = 1;
+  }
   std::vector<int> refused;
-  for (int q = 0; q < static_cast<int>(book->clusters.size()); ++q) {
-    JudgedCluster& c = book->clusters[q];
-    if (c.in_good || c.held || !(c.refused_variance > 0.0) ||
-        !(variance > kRefusedRatio * c.refused_variance)) {
-      continue;
-    }
-    c.refused_variance = variance;
+  for (int q = 0; q < n; ++q) {
+    if (!may_pass[q]) continue;
+    book->clusters[q].refused_variance = variance;
     refused.push_back(q);
   }
   if (!refused.empty()) Rejudge(refused, result);
@@ -55,10 +75,7 @@ template <class Pose>
 void WarmEngine<Pose>::Impl::NoteRefusals(const std::vector<int>& changed) {
   for (int e : changed) {
     const LoopDecision& decision = book->decisions[e];
-    const bool refused = decision.state == LoopState::kRejectedLinkTest ||
-                         decision.state == LoopState::kRejectedClusterTest ||
-                         decision.state == LoopState::kRejectedJointTest;
-    if (refused && decision.cluster >= 0)
+    if (IsRefusal(decision.state) && decision.cluster >= 0)
       book->clusters[decision.cluster].refused_variance = variance;
   }
 }
