@@ -275,17 +275,20 @@ TEMPLATE_TEST_CASE(
   run_steps(&restored);
   CheckSameIrrr(original, restored, tolerance);
   // The case exercises what the state must carry: decisions that are not just acceptances;
-  // the redundancy and acceptance variance factors (warm engine).
+  // the redundancy, acceptance and refusal variance factors (warm engine).
   const IrrrStepState<TestType> state = original.StepState();
   if (options.engine == IrrrEngine::kWarm) {
     int with_redundancy = 0;
     int accepted_at = 0;
+    int refused_at = 0;
     for (const auto& cluster : state.clusters) {
       with_redundancy += cluster.redundancy_dof > 0.0 ? 1 : 0;
       accepted_at += cluster.accepted_variance > 0.0 ? 1 : 0;
+      refused_at += cluster.refused_variance > 0.0 ? 1 : 0;
     }
     CHECK(with_redundancy > 0);
     CHECK(accepted_at > 0);
+    CHECK(refused_at > 0);
   }
   int rejected = 0;
   for (const LoopDecision& d : state.decisions) {

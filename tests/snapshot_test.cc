@@ -60,8 +60,12 @@ TEST_CASE("A snapshot body reads back as written, and any cut of it is refused",
   state.clusters[0].links = {1, 2};
   state.clusters[0].session_a = 1;
   state.clusters[0].in_good = true;
+  state.clusters[0].redundancy_chi2 = 3.5;
+  state.clusters[0].redundancy_dof = 6.0;
+  state.clusters[0].accepted_variance = 0.16;
   state.clusters[1].opponents = {0};
   state.clusters[1].in_reject = true;
+  state.clusters[1].refused_variance = 0.27;
   state.cluster_of = {0, 1};
   state.steps = 7;
   state.judged = 2;
@@ -87,6 +91,10 @@ TEST_CASE("A snapshot body reads back as written, and any cut of it is refused",
   CHECK(back.clusters[0].links == std::vector<int>{1, 2});
   CHECK((back.clusters[0].in_good && !back.clusters[0].in_r && back.clusters[1].in_reject));
   CHECK(back.clusters[1].opponents == std::vector<int>{0});
+  CHECK((back.clusters[0].redundancy_chi2 == 3.5 && back.clusters[0].redundancy_dof == 6.0));
+  CHECK(back.clusters[0].accepted_variance == 0.16);
+  CHECK(back.clusters[0].refused_variance == 0.0);
+  CHECK(back.clusters[1].refused_variance == 0.27);
   CHECK((back.steps == 7 && back.judged == 2 && back.cluster_of == state.cluster_of));
 
   for (size_t cut = 0; cut < body.size(); ++cut) {
