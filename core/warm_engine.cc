@@ -83,24 +83,17 @@ typename WarmEngine<Pose>::Impl::Scale WarmEngine<Pose>::Impl::CurrentScale() co
 
 template <class Pose>
 RedundancySample WarmEngine<Pose>::Impl::GoodSetRedundancy() const {
-  std::vector<int> components;
+  RedundancySample sample;
+  std::vector<int> seen;
   for (int s = 0; s < graph->num_sessions(); ++s) {
     const int c = good.ComponentOf(s);
-    if (c >= 0 && std::find(components.begin(), components.end(), c) == components.end()) {
-      components.push_back(c);
-    }
-  }
-  RedundancySample sample;
-  for (int component : components) {
-    int loops = 0;
-    for (const JudgedCluster& c : book->clusters) {
-      if (c.in_good && good.ComponentOf(c.session_a) == component) {
-        loops += static_cast<int>(c.links.size());
-      }
-    }
-    const int sessions = static_cast<int>(good.SessionsOf(component).size());
-    sample.chi2 += good.Solver(component).chi2();
-    sample.dof += d * (loops - sessions + 1);
+    if (c < 0 || std::find(seen.begin(), seen.end(), c) != seen.end()) continue;
+    seen.push_back(c);
+    const IncrementalSolver<Pose>& solver = good.Solver(c);
+    sample.chi2 += solver.chi2();
+    // Residual rows minus free parameters: d per edge, less d per pose but the anchor.
+    sample.dof += d * (static_cast<double>(solver.edges().size()) -
+                       static_cast<double>(solver.vertices().size()) + 1.0);
   }
   return sample;
 }

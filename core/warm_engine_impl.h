@@ -67,8 +67,8 @@ struct WarmEngine<Pose>::Impl {
   // known once enough redundancy is seen, or the good set's own factor if that is larger; never
   // above 1.
   Scale CurrentScale() const;
-  // The good set's redundancy: its chi2 at the optimum and its degrees of freedom (residual rows
-  // minus free parameters: d per loop, less d per session beyond the first of each component).
+  // The good set's redundancy: each component's chi2 at its optimum and its degrees of freedom
+  // (residual rows minus free parameters: d per loop, less d per session beyond the first).
   RedundancySample GoodSetRedundancy() const;
 
   void EstimateVarianceFactor();
