@@ -14,6 +14,7 @@ Status IncrementalSolverOptions::Validate() const {
   if (trial_batch_max_iterations < 1) {
     return Status::Error("trial_batch_max_iterations must be at least 1");
   }
+  if (!(model_tolerance >= 0.0)) return Status::Error("model_tolerance must be >= 0");
   if (!(spare_fraction >= 0.0)) return Status::Error("spare_fraction must be >= 0");
   if (!(refill_ratio > 1.0)) return Status::Error("refill_ratio must be > 1");
   return Status::Ok();
@@ -271,6 +272,7 @@ void IncrementalSolver<Pose>::Commit() {
   IRRR_CHECK(m.trial_active);
   m.trial_active = false;
   m.trial = typename Impl::Trial();
+  m.NoteSettled();
 }
 
 template <class Pose>

@@ -411,6 +411,44 @@ struct IncrementalSolver<Pose>::Impl {
   }
 
   double ModelChi2() const { return chi2_lin - b.dot(delta); }
+  // Degrees of freedom of the problem: residual rows less free pose variables.
+  double DegreesOfFreedom() const {
+    const double used = static_cast<double>(vertex_of_slot.size());
+    return static_cast<double>(d) * (static_cast<double>(edges.size()) - used);
+  }
+
+  // Records D^2 per degree of freedom of the problem as it stands (not in a trial): the scale of
+  // the model tolerance until the next settled change, so that a change that raises D^2 (a wrong
+  // loop in a trial) does not widen its own tolerance.
+  void NoteSettled() {
+    if (trial_active) return;
+    const double dof = DegreesOfFreedom();
+    settled_chi2_per_dof = dof >= 1.0 ? ModelChi2() / dof : 0.0;
+  }
+
+  // Whether the quadratic model at x_lin still predicts the residuals at x: the squared
+  // (whitened) differences between the exact residuals of `moved_edges` and the model's, at most
+  // model_tolerance times the settled D^2 per degree of freedom. The model's optimum is then as
+  // good as the exact one's to about that much D^2: the misfit's projection on the Jacobians
+  // bounds what relinearizing would gain.
+  bool ModelHolds(const std::vector<int>& moved_edges) const {
+    const double budget = options.model_tolerance * settled_chi2_per_dof;
+    if (!(budget > 0.0)) return false;
+    double misfit = 0.0;
+    for (int e : moved_edges) {
+      const Term t = Linearize(e);
+      Tangent predicted = t.r;
+      if (t.slot_from >= 0) predicted += t.J_from * delta.segment<d>(t.slot_from * d);
+      if (t.slot_to >= 0) predicted += t.J_to * delta.segment<d>(t.slot_to * d);
+      const Edge<Pose>& edge = graph->edge(e);
+      const Tangent r = RelativePoseResidual<Pose>(
+          edge.measurement, Estimate(edge.from), Estimate(edge.to), nullptr, nullptr);
+      const Matrix U = Eigen::LLT<Matrix>(edge.information).matrixU();
+      misfit += (U * r - predicted).squaredNorm();
+      if (misfit > budget) return false;
+    }
+    return true;
+  }
   double ExactChi2() const {
     double chi2 = 0.0;
     for (int e : edges) {
@@ -480,18 +518,19 @@ struct IncrementalSolver<Pose>::Impl {
           moved.push_back(s);
         }
       }
-      if (moved.empty()) {
-        summary.ok = true;
-        summary.chi2 = chi2;
-        return summary;
-      }
-      summary.relinearized += static_cast<int>(moved.size());
       std::vector<int> moved_edge_list;
       for (int q : moved)
         moved_edge_list.insert(moved_edge_list.end(), incident[q].begin(), incident[q].end());
       std::sort(moved_edge_list.begin(), moved_edge_list.end());
       moved_edge_list.erase(std::unique(moved_edge_list.begin(), moved_edge_list.end()),
                             moved_edge_list.end());
+      if (moved.empty() || ModelHolds(moved_edge_list)) {
+        summary.ok = true;
+        summary.chi2 = chi2;
+        NoteSettled();
+        return summary;
+      }
+      summary.relinearized += static_cast<int>(moved.size());
       const bool large = CheaperToRebuild(moved_edge_list, 2);
       // Unsettled: rising, or running out of iterations (a trial gets a batch solve half way and
       // fails if that does not settle it).
@@ -515,6 +554,7 @@ struct IncrementalSolver<Pose>::Impl {
     summary.ok = true;
     summary.chi2 = ModelChi2();
     summary.message = "stopped at max_iterations";
+    NoteSettled();
     return summary;
   }
 
@@ -678,7 +718,8 @@ struct IncrementalSolver<Pose>::Impl {
   std::vector<Pose> x;                     // per place: estimate, x_lin (+) delta
   Eigen::VectorXd delta;                   // per scalar variable (original order)
   Eigen::VectorXd b;
-  double chi2_lin = 0.0;  // sum of r'Omega r at the linearization points
+  double chi2_lin = 0.0;              // sum of r'Omega r at the linearization points
+  double settled_chi2_per_dof = 0.0;  // NoteSettled; 0: not known (every moved pose relinearized)
 
   int capacity = 0;  // places in the factor
   cholmod_common common;

@@ -1,5 +1,6 @@
 #include "core/irrr.h"
 
+#include <algorithm>
 #include <cmath>
 #include <fstream>
 #include <random>
@@ -8,6 +9,7 @@
 #include <catch2/catch.hpp>
 
 #include "core/graph_io.h"
+#include "core/incremental_solver.h"
 #include "core/outliers.h"
 #include "core/test_statistics.h"
 #include "tests/corrupted_graph.h"
@@ -22,12 +24,6 @@ using testing::MakeSyntheticGraph;
 using testing::NoisyWorld;
 using testing::RelativeDifference;
 using testing::SyntheticOptions;
-
-// The warm engine's estimate is the optimum of what it accepted to within its solver's
-// relinearization bounds (measured: up to 1.5e-5 m and 3e-6 rad on these graphs), far below the
-// noise (0.05 m, 0.01 rad).
-constexpr double kSameEstimateM = 1e-4;
-constexpr double kSameEstimateRad = 1e-5;
 
 TEST_CASE("Chi-square quantiles match published tables", "[irrr]") {
   // Values from standard chi-square tables (e.g. NIST/SEMATECH e-Handbook 1.3.6.7.4).
@@ -71,36 +67,42 @@ void CheckNoOutlierAccepted(const Corrupted<Pose>& corrupted,
 }
 
 // The robust estimate is the optimum of the graph with exactly the loops it accepted: a solve
-// started from it has nothing left to do (chi2 and poses unchanged, relative to pose 0). Started
-// from it rather than from dead reckoning, because sessions that start unaligned can lead
-// Gauss-Newton to another, worse minimum.
-// With `poses` false only chi2 is compared: the paper engine may accept wrong loops, and the
-// optimum with them is flat enough that solves stopping at the optimizer's tolerances lie
-// millimetres apart.
+// started from it lowers chi2 by no more than the optimizer's tolerances, or by `slack_dofs`
+// degrees of freedom's worth of chi2 (chi2 per degree of freedom at the optimum) where that is
+// more. Started from it rather than from dead reckoning, because sessions that start unaligned
+// can lead Gauss-Newton to another, worse minimum. The accepted loops must join the graph.
 template <class Pose>
 void CheckEstimateIsOptimumOfAccepted(const Corrupted<Pose>& corrupted,
                                       const std::vector<LoopDecision>& decisions,
                                       const std::vector<Pose>& robust,
-                                      bool poses = true) {
+                                      double slack_dofs) {
   std::vector<char> accepted(corrupted.graph.num_edges(), 0);
+  int edges = 0;
   for (int e = 0; e < corrupted.graph.num_edges(); ++e) {
     accepted[e] = corrupted.graph.edge(e).kind == EdgeKind::kOdometry ||
                   decisions[e].state == LoopState::kAccepted;
+    edges += accepted[e];
   }
   Optimizer<Pose> optimizer;
   std::vector<Pose> polished = robust;
   const OptimizerSummary summary = optimizer.Solve(corrupted.graph, accepted, &polished);
   REQUIRE(summary.termination == TerminationType::kConvergence);
+  const double dof = Pose::kDim * static_cast<double>(edges - corrupted.graph.num_vertices() + 1);
+  REQUIRE(dof > 0.0);
   // Converged solves agree to the optimizer's tolerances, far below the noise.
   constexpr double kSameChi2 = 1e-6;
-  CHECK(summary.final_chi2 >= summary.initial_chi2 * (1.0 - kSameChi2));
-  if (!poses) return;
-  double translation_m = 0.0;
-  double rotation_rad = 0.0;
-  RelativeDifference(robust, polished, 0, &translation_m, &rotation_rad);
-  CHECK(translation_m < kSameEstimateM);
-  CHECK(rotation_rad < kSameEstimateRad);
+  const double slack =
+      std::max(kSameChi2 * summary.initial_chi2, slack_dofs * summary.final_chi2 / dof);
+  INFO("chi2 " << summary.initial_chi2 << " polished to " << summary.final_chi2 << ", slack "
+               << slack);
+  CHECK(summary.initial_chi2 - summary.final_chi2 <= slack);
 }
+
+// The warm engine's solver keeps its linearization points while their quadratic model holds:
+// its estimate is the optimum of what it accepted to within about model_tolerance degrees of
+// freedom's chi2 (the model's misfit is summed over the edges of poses past the relinearization
+// bounds; the others add their share). Measured on these graphs: up to 1.4 times it.
+const double kWarmSlackDofs = 2.0 * IncrementalSolverOptions().model_tolerance;
 
 // The synthetic robot revisits places every few poses; a cluster gap of 10 poses keeps clusters
 // to one visit (the paper picks t_g by the rate of the place recognition).
@@ -134,12 +136,12 @@ TEMPLATE_TEST_CASE(
     std::vector<TestType> estimate;
     const auto decisions = RunIncrementalIrrr(corrupted.graph, options, &estimate, nullptr);
     CheckNoOutlierAccepted(corrupted, decisions, "incremental, " + what);
-    CheckEstimateIsOptimumOfAccepted(corrupted, decisions, estimate);
+    CheckEstimateIsOptimumOfAccepted(corrupted, decisions, estimate, kWarmSlackDofs);
   }
   SECTION("batch RRR (the paper's tests, which are not held to precision 1)") {
     std::vector<TestType> estimate;
     const auto decisions = RunBatchRrr(corrupted.graph, options, &estimate);
-    CheckEstimateIsOptimumOfAccepted(corrupted, decisions, estimate, /*poses=*/false);
+    CheckEstimateIsOptimumOfAccepted(corrupted, decisions, estimate, 0.0);
   }
 }
 
@@ -189,15 +191,15 @@ TEMPLATE_TEST_CASE(
   const std::vector<int> components = SessionComponents(corrupted.graph, accepted);
   if (components != std::vector<int>{0, 0, 0}) WARN("sessions not all merged");
   if (components == std::vector<int>{0, 0, 0}) {
-    CheckEstimateIsOptimumOfAccepted(corrupted, decisions, estimate);
+    CheckEstimateIsOptimumOfAccepted(corrupted, decisions, estimate, kWarmSlackDofs);
   }
 }
 
-// The same decisions, and statistics and poses within `tolerance` (relative, and metres or
-// radians): 0 for the paper engine, whose steps start from dead reckoning, so that the same
-// inputs and state give the same numbers bit for bit; the warm engine rebuilds its good-set
-// estimate from the restored poses, which agrees with the updated one to the rounding of the
-// updates and the solver's relinearization bounds.
+// The same decisions, and statistics and poses within `tolerance` (chi2 relative to the larger
+// of itself and its threshold; metres or radians): 0 for the paper engine, whose steps start from
+// dead reckoning, so that the same inputs and state give the same numbers bit for bit; the warm
+// engine rebuilds its good-set estimate at the optimum of the restored poses, where the original
+// kept its linearization points while their quadratic model held.
 template <class Pose>
 void CheckSameIrrr(const Irrr<Pose>& a, const Irrr<Pose>& b, double tolerance) {
   REQUIRE(a.num_steps() == b.num_steps());
@@ -209,7 +211,7 @@ void CheckSameIrrr(const Irrr<Pose>& a, const Irrr<Pose>& b, double tolerance) {
     CHECK(x.state == y.state);
     CHECK(x.cluster == y.cluster);
     CHECK(x.step == y.step);
-    CHECK((std::abs(x.chi2 - y.chi2) <= tolerance * std::abs(x.chi2) ||
+    CHECK((std::abs(x.chi2 - y.chi2) <= tolerance * std::max(std::abs(x.chi2), x.threshold) ||
            (std::isnan(x.chi2) && std::isnan(y.chi2))));
   }
   REQUIRE(a.estimate().size() == b.estimate().size());
@@ -220,8 +222,9 @@ void CheckSameIrrr(const Irrr<Pose>& a, const Irrr<Pose>& b, double tolerance) {
   }
 }
 
-// Within the solver's relinearization bounds (1e-3 rad, 1e-2 m); measured up to 1.1e-4.
-constexpr double kRestoredWarmTolerance = 1e-3;
+// Both within the solver's model tolerance of the optimum: millimetres along the estimate's
+// weakest directions. Measured up to 1.6e-3.
+constexpr double kRestoredWarmTolerance = 1e-2;
 
 TEMPLATE_TEST_CASE(
     "An Irrr fed the inputs without their steps, given the step state, goes on as the original",

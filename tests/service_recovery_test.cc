@@ -52,11 +52,13 @@ namespace {
 using Catch::Matchers::Contains;
 using Clock = std::chrono::steady_clock;
 
-// A restart from a snapshot rebuilds the warm engine's good-set estimate from the snapshot's
-// poses: the decisions that follow are the same, their statistics and the poses agree to this
-// (relative for chi2, metres and quaternion components for poses): the solver's linearization
-// points differ within its relinearization bounds. Measured: up to 2.6e-5.
-constexpr double kRestoredTolerance = 1e-4;
+// A restart from a snapshot rebuilds the warm engine's good-set estimate at the optimum of the
+// snapshot's poses, where the original kept its linearization points while their quadratic model
+// held (IncrementalSolverOptions::model_tolerance): the decisions that follow are the same, their
+// chi2 agree to this fraction of the larger of chi2 and the threshold, and the poses to this many
+// metres and quaternion components. Measured: up to 2.5e-3 (poses, along the estimate's weakest
+// directions, where a tenth of a degree of freedom's chi2 moves them furthest).
+constexpr double kRestoredTolerance = 1e-2;
 
 // The state it had: the same decisions and the same estimate, bit for bit when every step ran
 // again (`tolerance` 0), to `tolerance` after a snapshot.
@@ -74,9 +76,10 @@ void CheckSameState(const std::vector<HypothesisDecision>& now,
     CHECK(now[k].decision.state == before[k].decision.state);
     CHECK(now[k].decision.step == before[k].decision.step);
     CHECK(now[k].decision.cluster == before[k].decision.cluster);
-    CHECK(
-        (close(now[k].decision.chi2, before[k].decision.chi2, std::abs(before[k].decision.chi2)) ||
-         (std::isnan(now[k].decision.chi2) && std::isnan(before[k].decision.chi2))));
+    CHECK((close(now[k].decision.chi2,
+                 before[k].decision.chi2,
+                 std::max(std::abs(before[k].decision.chi2), before[k].decision.threshold)) ||
+           (std::isnan(now[k].decision.chi2) && std::isnan(before[k].decision.chi2))));
   }
   REQUIRE(estimate.size() == estimate_before.size());
   for (size_t s = 0; s < estimate.size(); ++s) {
