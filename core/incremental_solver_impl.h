@@ -116,6 +116,20 @@ struct IncrementalSolver<Pose>::Impl {
   const Pose& Estimate(int v) const { return v == anchor ? anchor_pose : x[slot_of[v]]; }
   int SlotOf(int v) const { return v < static_cast<int>(slot_of.size()) ? slot_of[v] : -1; }
 
+  // U with U'U = the information of edge `e` (its Cholesky factor), computed once per edge: every
+  // linearization and model check whitens by it.
+  const Matrix& Whitening(int e) const {
+    if (static_cast<int>(whitening.size()) <= e) {
+      whitening.resize(graph->num_edges());
+      whitening_known.resize(graph->num_edges(), 0);
+    }
+    if (!whitening_known[e]) {
+      whitening[e] = Eigen::LLT<Matrix>(graph->edge(e).information).matrixU();
+      whitening_known[e] = 1;
+    }
+    return whitening[e];
+  }
+
   Term Linearize(int e) const {
     const Edge<Pose>& edge = graph->edge(e);
     Term t;
@@ -126,8 +140,7 @@ struct IncrementalSolver<Pose>::Impl {
                                                  LinearizationPoint(edge.to),
                                                  &t.J_from,
                                                  &t.J_to);
-    const Eigen::LLT<Matrix> llt(edge.information);
-    const Matrix U = llt.matrixU();
+    const Matrix& U = Whitening(e);
     t.J_from = U * t.J_from;
     t.J_to = U * t.J_to;
     t.r = U * r;
@@ -443,8 +456,7 @@ struct IncrementalSolver<Pose>::Impl {
       const Edge<Pose>& edge = graph->edge(e);
       const Tangent r = RelativePoseResidual<Pose>(
           edge.measurement, Estimate(edge.from), Estimate(edge.to), nullptr, nullptr);
-      const Matrix U = Eigen::LLT<Matrix>(edge.information).matrixU();
-      misfit += (U * r - predicted).squaredNorm();
+      misfit += (Whitening(e) * r - predicted).squaredNorm();
       if (misfit > budget) return false;
     }
     return true;
@@ -718,7 +730,9 @@ struct IncrementalSolver<Pose>::Impl {
   std::vector<Pose> x;                     // per place: estimate, x_lin (+) delta
   Eigen::VectorXd delta;                   // per scalar variable (original order)
   Eigen::VectorXd b;
-  double chi2_lin = 0.0;              // sum of r'Omega r at the linearization points
+  double chi2_lin = 0.0;                  // sum of r'Omega r at the linearization points
+  mutable std::vector<Matrix> whitening;  // per graph edge (Whitening)
+  mutable std::vector<char> whitening_known;
   double settled_chi2_per_dof = 0.0;  // NoteSettled; 0: not known (every moved pose relinearized)
 
   int capacity = 0;  // places in the factor
