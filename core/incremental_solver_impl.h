@@ -117,17 +117,17 @@ struct IncrementalSolver<Pose>::Impl {
   int SlotOf(int v) const { return v < static_cast<int>(slot_of.size()) ? slot_of[v] : -1; }
 
   // U with U'U = the information of edge `e` (its Cholesky factor), computed once per edge: every
-  // linearization and model check whitens by it.
+  // linearization and model check whitens by it. Kept for the edges this solver has seen (a
+  // fleet's graph may hold many components' edges).
   const Matrix& Whitening(int e) const {
-    if (static_cast<int>(whitening.size()) <= e) {
-      whitening.resize(graph->num_edges());
-      whitening_known.resize(graph->num_edges(), 0);
+    if (static_cast<int>(whitening_of_edge.size()) <= e) {
+      whitening_of_edge.resize(graph->num_edges(), -1);
     }
-    if (!whitening_known[e]) {
-      whitening[e] = Eigen::LLT<Matrix>(graph->edge(e).information).matrixU();
-      whitening_known[e] = 1;
+    if (whitening_of_edge[e] < 0) {
+      whitening_of_edge[e] = static_cast<int>(whitening.size());
+      whitening.push_back(Eigen::LLT<Matrix>(graph->edge(e).information).matrixU());
     }
-    return whitening[e];
+    return whitening[whitening_of_edge[e]];
   }
 
   Term Linearize(int e) const {
@@ -730,9 +730,9 @@ struct IncrementalSolver<Pose>::Impl {
   std::vector<Pose> x;                     // per place: estimate, x_lin (+) delta
   Eigen::VectorXd delta;                   // per scalar variable (original order)
   Eigen::VectorXd b;
-  double chi2_lin = 0.0;                  // sum of r'Omega r at the linearization points
-  mutable std::vector<Matrix> whitening;  // per graph edge (Whitening)
-  mutable std::vector<char> whitening_known;
+  double chi2_lin = 0.0;                       // sum of r'Omega r at the linearization points
+  mutable std::vector<Matrix> whitening;       // Whitening, per edge seen
+  mutable std::vector<int> whitening_of_edge;  // per graph edge: its place there, or -1
   double settled_chi2_per_dof = 0.0;  // NoteSettled; 0: not known (every moved pose relinearized)
 
   int capacity = 0;  // places in the factor
