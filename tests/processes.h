@@ -98,11 +98,14 @@ inline void RunBatch(const std::string& dir, const std::string& input, const std
   REQUIRE(code == 0);
 }
 
-// A daemon restarted from a snapshot rebuilds its good-set estimate from the snapshot's poses:
-// its chi2 values and poses agree with an uninterrupted run's to the solver's relinearization
-// bounds, not bit for bit (measured: 1e-7 relative, 3e-5 m). Without restarts they are equal.
-constexpr double kSameChi2Relative = 1e-4;
-constexpr double kSamePoseM = 1e-4;
+// A daemon restarted from a snapshot rebuilds its good-set estimate at the optimum of the
+// snapshot's poses, where an uninterrupted run kept moved poses at their linearization points
+// while the quadratic model there held (IncrementalSolverOptions::model_tolerance): the same
+// decisions, chi2 values within this fraction of the larger of chi2 and the threshold, poses
+// within this many metres or radians (tests/service_recovery_test.cc measured up to 2.5e-3).
+// Without restarts they are equal.
+constexpr double kSameChi2Relative = 1e-2;
+constexpr double kSamePoseM = 1e-2;
 
 // The listener's decisions and map equal irrr-batch's: same states, clusters and steps, chi2
 // and every pose within the tolerances above, and (unless the network lost some of the inputs the
@@ -133,7 +136,8 @@ inline void CheckSameAsBatch(const std::string& dir, bool all_edges_heard = true
     CHECK(got.decision.cluster == batch[k].decision.cluster);
     CHECK(got.decision.step == batch[k].decision.step);
     if (!std::isnan(batch[k].decision.chi2)) {
-      CHECK(got.decision.chi2 == Approx(batch[k].decision.chi2).epsilon(kSameChi2Relative));
+      const double scale = std::max(std::abs(batch[k].decision.chi2), batch[k].decision.threshold);
+      CHECK(std::abs(got.decision.chi2 - batch[k].decision.chi2) <= kSameChi2Relative * scale);
     }
   }
   GraphFile<Pose2> batch_map;
