@@ -156,9 +156,8 @@ TEMPLATE_TEST_CASE(
     "[incremental]",
     Pose2,
     Pose3) {
-  const uint32_t seed = GENERATE(1u, 2u);
-  INFO("seed " << seed);
-  auto synthetic = MakeSyntheticGraph<TestType>(NoisyOptions<TestType>(seed));
+  // One seed: each run feeds the graph twice (3.5-4 s in 3D, about 50 s under the sanitizers).
+  auto synthetic = MakeSyntheticGraph<TestType>(NoisyOptions<TestType>(1));
   PoseGraph<TestType>& graph = synthetic.graph;
   const int wrong = AddFarWrongLoop(&graph);
   std::vector<char> active(graph.num_edges(), 1);
