@@ -22,7 +22,6 @@ using testing::Corrupted;
 using testing::MakeCorrupted;
 using testing::MakeSyntheticGraph;
 using testing::NoisyWorld;
-using testing::RelativeDifference;
 using testing::SyntheticOptions;
 
 TEST_CASE("Chi-square quantiles match published tables", "[irrr]") {
