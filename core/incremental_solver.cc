@@ -328,6 +328,11 @@ double IncrementalSolver<Pose>::ExactChi2() const {
 }
 
 template <class Pose>
+double IncrementalSolver<Pose>::DegreesOfFreedom() const {
+  return impl_->DegreesOfFreedom();
+}
+
+template <class Pose>
 const typename IncrementalSolver<Pose>::Counters& IncrementalSolver<Pose>::counters() const {
   return impl_->counters;
 }

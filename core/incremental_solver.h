@@ -150,6 +150,8 @@ class IncrementalSolver {
   double chi2() const;
   // The exact D^2 of the problem's edges at the estimate.
   double ExactChi2() const;
+  // Degrees of freedom of the problem: d per edge, less d per pose but the anchor.
+  double DegreesOfFreedom() const;
 
   // Work counters, for the benchmarks.
   struct Counters {

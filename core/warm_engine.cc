@@ -91,9 +91,7 @@ RedundancySample WarmEngine<Pose>::Impl::GoodSetRedundancy() const {
     seen.push_back(c);
     const IncrementalSolver<Pose>& solver = good.Solver(c);
     sample.chi2 += solver.chi2();
-    // Residual rows minus free parameters: d per edge, less d per pose but the anchor.
-    sample.dof += d * (static_cast<double>(solver.edges().size()) -
-                       static_cast<double>(solver.vertices().size()) + 1.0);
+    sample.dof += solver.DegreesOfFreedom();
   }
   return sample;
 }
