@@ -98,7 +98,11 @@ RedundancySample WarmEngine<Pose>::Impl::GoodSetRedundancy() const {
 
 template <class Pose>
 void WarmEngine<Pose>::Impl::EstimateVarianceFactor() {
-  const Scale scale = CurrentScale();
+  UseScale(CurrentScale());
+}
+
+template <class Pose>
+void WarmEngine<Pose>::Impl::UseScale(const Scale& scale) {
   scale_known = scale.known;
   variance = scale.variance;
   clusters_variance = scale.clusters;
@@ -148,10 +152,10 @@ void WarmEngine<Pose>::Impl::Step(int k, StepResult* result) {
     EstimateVarianceFactor();
     if (!scale_known && released) {
       // A flush or a session's end: what waits is judged with the information as given.
-      variance = 1.0;
-      clusters_variance = 1.0;
-      variance_dof = std::numeric_limits<double>::infinity();
-      scale_known = true;
+      Scale as_given;
+      as_given.known = true;
+      as_given.estimate = variance_estimate;
+      UseScale(as_given);
     }
     if (scale_known) {
       batch = Waiting();

@@ -71,7 +71,9 @@ struct WarmEngine<Pose>::Impl {
   // (residual rows minus free parameters: d per loop, less d per session beyond the first).
   RedundancySample GoodSetRedundancy() const;
 
+  // The factors of the tests from CurrentScale, or as `scale` gives them.
   void EstimateVarianceFactor();
+  void UseScale(const Scale& scale);
 
   // Before any factor is known, the redundancy of cluster q on its own scale: Algorithm 1's
   // optimum, its links failing the link test at the scale they imply set aside and the rest solved
