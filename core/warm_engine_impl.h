@@ -80,6 +80,14 @@ struct WarmEngine<Pose>::Impl {
   // again, until none fails (a trimmed estimate: one wrong link among many true ones dominates the
   // cluster's chi2 and stands out against it). The cluster itself is unchanged.
   void Calibrate(int q);
+  // A set of `all` consistent at the scale of its own pairs, stepping down from the pairs of
+  // `links` (consistent at `pair_factor`) while that scale falls.
+  std::vector<int> Concentrate(const std::vector<int>& all,
+                               std::vector<int> links,
+                               double pair_factor) const;
+  // `links` without the one whose removal lowers the local problem's chi2 most (empty: none
+  // solved).
+  std::vector<int> WithoutMostInfluential(const std::vector<int>& links);
 
   // ---- the good set --------------------------------------------------------------------------
 
