@@ -134,6 +134,7 @@ void WarmEngine<Pose>::Impl::Calibrate(int q) {
     if (!(sample.dof > 0.0)) break;
     book->clusters[q].redundancy_chi2 = sample.chi2;
     book->clusters[q].redundancy_dof = sample.dof;
+    if (round + 1 == rounds) break;  // what follows only prepares the next round's sample
     // A sample above 1 says the set holds links the rest disagrees with (or over-confident
     // information, which the data cannot tell apart, and which is never used above 1).
     const bool contaminated = sample.chi2 > sample.dof;
