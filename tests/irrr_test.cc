@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <fstream>
+#include <map>
 #include <random>
 #include <string>
 
@@ -571,61 +572,103 @@ TEST_CASE("Runs of loops that share their error: the good set's variance factor 
 }
 
 // The paper's multi-session experiment (IV.B): Intel cut into four sessions, each re-based in its
-// own frame, plus 600 wrong loops in 200 internally consistent groups of 3. About 35 s in Release
-// with the warm engine ([slow]: left out of the sanitizer run).
-TEST_CASE(
-    "Intel in four sessions with 200 wrong groups merges into one map and accepts no wrong loop",
-    "[irrr][slow][intel]") {
+// own frame, plus 600 wrong loops in 200 internally consistent groups of 3 (random places, seed
+// `seed`), replayed through iRRR.
+struct PaperExperiment {
+  PoseGraph<Pose2> graph;
+  int first_outlier = 0;
+  int true_loops = 0;
+  int inter_session_outliers = 0;
+  std::vector<LoopDecision> decisions;
+};
+
+PaperExperiment RunPaperExperiment(int seed) {
   std::ifstream in(std::string(IRRR_DATA_DIR) + "/intel.g2o");
   REQUIRE(in.good());
   GraphFile<Pose2> file;
   REQUIRE(ReadGraphFile(in, FileFormat::kG2o, ReadOptions(), &file).ok());
   REQUIRE(SplitIntoSessions<Pose2>({236, 472, 708}, &file).ok());
-  PoseGraph<Pose2> graph;
+  PaperExperiment run;
   std::vector<int> graph_edge_of_file_edge;
-  REQUIRE(BuildPoseGraph(file, &graph, &graph_edge_of_file_edge).ok());
-  REQUIRE(graph.num_sessions() == 4);
-  const int true_loops = graph.num_edges() - (graph.num_vertices() - graph.num_sessions());
+  REQUIRE(BuildPoseGraph(file, &run.graph, &graph_edge_of_file_edge).ok());
+  REQUIRE(run.graph.num_sessions() == 4);
+  run.true_loops = run.graph.num_edges() - (run.graph.num_vertices() - run.graph.num_sessions());
 
   OutlierOptions outliers;
   outliers.mode = OutlierMode::kRandomGrouped;
   outliers.count = 600;
   outliers.group_size = 3;
-  outliers.seed = 3;
+  outliers.seed = seed;
   std::vector<OutlierLink<Pose2>> links;
-  REQUIRE(MakeOutliers(graph, outliers, &links).ok());
+  REQUIRE(MakeOutliers(run.graph, outliers, &links).ok());
   REQUIRE(links.size() == 600);
-  const int first_outlier = graph.num_edges();
-  int inter_session_outliers = 0;
+  run.first_outlier = run.graph.num_edges();
   for (const OutlierLink<Pose2>& link : links) {
-    REQUIRE(graph.AddLoop(link.from, link.to, link.measurement, link.information, nullptr).ok());
-    inter_session_outliers +=
-        graph.vertex(link.from).session != graph.vertex(link.to).session ? 1 : 0;
+    REQUIRE(
+        run.graph.AddLoop(link.from, link.to, link.measurement, link.information, nullptr).ok());
+    run.inter_session_outliers +=
+        run.graph.vertex(link.from).session != run.graph.vertex(link.to).session ? 1 : 0;
   }
-  // Most random groups join two different sessions: the hard case of III.C.
-  CHECK(inter_session_outliers > 300);
-
   // Intel revisits its corridors constantly: with the reference's gap of 50 poses clusters grow
-  // to hundreds of links; 10 poses keeps each to one revisit (and the run to about a minute).
+  // to hundreds of links; 10 poses keeps each to one revisit.
   IrrrOptions options;
   options.cluster_gap = 10.0;
-  std::vector<Pose2> estimate;
-  const std::vector<LoopDecision> decisions =
-      RunIncrementalIrrr(graph, options, &estimate, nullptr);
+  run.decisions = RunIncrementalIrrr<Pose2>(run.graph, options, nullptr, nullptr);
+  return run;
+}
+
+// About 2 s in Release ([slow]: left out of the sanitizer run).
+TEST_CASE(
+    "Intel in four sessions with 200 wrong groups merges into one map and accepts no wrong loop",
+    "[irrr][slow][intel]") {
+  const PaperExperiment run = RunPaperExperiment(3);
+  // Most random groups join two different sessions: the hard case of III.C.
+  CHECK(run.inter_session_outliers > 300);
   int accepted_true = 0;
   int accepted_wrong = 0;
-  std::vector<char> active(graph.num_edges(), 0);
-  for (int e = 0; e < graph.num_edges(); ++e) {
-    const bool accepted = decisions[e].state == LoopState::kAccepted;
-    active[e] = graph.edge(e).kind == EdgeKind::kOdometry || accepted;
-    if (graph.edge(e).kind != EdgeKind::kLoop || !accepted) continue;
-    (e >= first_outlier ? accepted_wrong : accepted_true) += 1;
+  std::vector<char> active(run.graph.num_edges(), 0);
+  for (int e = 0; e < run.graph.num_edges(); ++e) {
+    const bool accepted = run.decisions[e].state == LoopState::kAccepted;
+    active[e] = run.graph.edge(e).kind == EdgeKind::kOdometry || accepted;
+    if (run.graph.edge(e).kind != EdgeKind::kLoop || !accepted) continue;
+    (e >= run.first_outlier ? accepted_wrong : accepted_true) += 1;
   }
-  INFO(accepted_true << " of " << true_loops << " true loops accepted");
+  INFO(accepted_true << " of " << run.true_loops << " true loops accepted");
   CHECK(accepted_wrong == 0);
-  CHECK(static_cast<double>(accepted_true) / true_loops >= kTargetRecall);
-  const std::vector<int> components = SessionComponents(graph, active);
+  CHECK(static_cast<double>(accepted_true) / run.true_loops >= kTargetRecall);
+  const std::vector<int> components = SessionComponents(run.graph, active);
   CHECK(components == std::vector<int>{0, 0, 0, 0});
+}
+
+// A cluster whose largest pairwise-consistent set fails Algorithm 1 has its other consistent sets
+// split off, and those that pass go on to the joint test. Seed 4 of the experiment left two such
+// splits (3 and 2 true links) pending for good before that was fixed: what may stay pending at the
+// end is only a lone link nothing can check yet.
+TEST_CASE("Intel in four sessions, seed 4: nothing is left pending but lone links",
+          "[irrr][slow][intel]") {
+  const PaperExperiment run = RunPaperExperiment(4);
+  std::map<int, int> links_of_cluster;
+  for (int e = 0; e < run.graph.num_edges(); ++e) {
+    if (run.graph.edge(e).kind == EdgeKind::kLoop) ++links_of_cluster[run.decisions[e].cluster];
+  }
+  int pending = 0;
+  int accepted_true = 0;
+  int accepted_wrong = 0;
+  for (int e = 0; e < run.graph.num_edges(); ++e) {
+    if (run.graph.edge(e).kind != EdgeKind::kLoop) continue;
+    const LoopDecision& decision = run.decisions[e];
+    if (decision.state == LoopState::kAccepted) {
+      (e >= run.first_outlier ? accepted_wrong : accepted_true) += 1;
+    }
+    if (decision.state != LoopState::kPending) continue;
+    ++pending;
+    INFO("loop " << run.graph.edge(e).from << " -> " << run.graph.edge(e).to << ", cluster "
+                 << decision.cluster);
+    CHECK(links_of_cluster[decision.cluster] == 1);
+  }
+  INFO(pending << " pending, " << accepted_true << " of " << run.true_loops << " true accepted");
+  CHECK(accepted_wrong == 0);
+  CHECK(static_cast<double>(accepted_true) / run.true_loops >= kTargetRecall);
 }
 
 }  // namespace
