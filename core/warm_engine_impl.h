@@ -193,6 +193,14 @@ struct WarmEngine<Pose>::Impl {
   // 0 (the global factor) otherwise. At most kOwnFactorRatio times the global factor and 1: wrong
   // links raise a cluster's own factor (Sphere2500 + 1000 random: to 6.9, seven wrong loops in).
   double OwnVariance(int q) const;
+  // The lowest own factor (chi2 over degrees of freedom of Algorithm 1's optimum) among the runs
+  // of cluster q (Runs) with kOwnFactorMinimumDof of redundancy; infinity for a cluster of one
+  // run or none with that much (short runs' factors are too noisy: Intel lost 4-9% recall). A
+  // revisit's matches share their error, which is what a cluster's own factor is for; a wrong
+  // run among true ones raises the cluster's factor by disagreeing with them, not within itself
+  // (Manhattan + 1000 local-grouped in tens: a group of 10 passed at the cluster's own factor,
+  // twice the global one).
+  double LowestRunVariance(int q);
 
   // The parts a cluster failing the joint test is judged again as: each run of two links or more
   // (links whose ends lie within kRunGap poses of another's ends), in the order of its first

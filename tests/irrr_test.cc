@@ -566,9 +566,10 @@ TEST_CASE("Runs of loops that share their error: the good set's variance factor 
   INFO("factor " << steps.back().variance_factor);
   CHECK(steps.back().variance_factor > 1.5 * synthetic.information_scale);
   // Every loop is true: nearly all pass at the good set's factor (796 of 798; 772 with the
-  // clusters' estimate, 0.108), far fewer at the clusters' own (695).
+  // clusters' estimate, 0.108), fewer at the clusters' own (726; 695 before a run that fails
+  // with its cluster was judged at its own factor rather than the global one).
   CHECK(accepted >= 0.99 * loops);
-  CHECK(accepted_at_clusters_factor < 0.9 * loops);
+  CHECK(accepted_at_clusters_factor < 0.95 * loops);
 }
 
 // The paper's multi-session experiment (IV.B): Intel cut into four sessions, each re-based in its
