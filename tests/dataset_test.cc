@@ -210,6 +210,15 @@ CorruptedRun RunCorrupted(
   return run;
 }
 
+// No wrong loop accepted, recall at least 0.99, and nothing left pending in a cluster of two links
+// or more.
+void CheckNoneWrongRecallAtLeast99(const CorruptedRun& run) {
+  INFO(run.accepted_true << " of " << run.true_loops << " true loops accepted");
+  CHECK(run.accepted_wrong == 0);
+  CHECK(run.accepted_true >= 0.99 * run.true_loops);
+  CHECK(run.pending_in_clusters == 0);
+}
+
 // The largest variance factor a decision was made at (steps that wait for a factor change
 // nothing).
 double LargestFactorDecidedAt(const std::vector<StepResult>& steps) {
@@ -228,10 +237,7 @@ TEST_CASE("Manhattan + 1000 local wrong loops: none accepted, recall at least 0.
           "[datasets][irrr]") {
   const CorruptedRun run =
       RunCorrupted("manhattan/vertigo/Olson/manhattanOlson3500.g2o", OutlierMode::kLocal, 1000, 1);
-  INFO(run.accepted_true << " of " << run.true_loops << " true loops accepted");
-  CHECK(run.accepted_wrong == 0);
-  CHECK(run.accepted_true >= 0.99 * run.true_loops);
-  CHECK(run.pending_in_clusters == 0);
+  CheckNoneWrongRecallAtLeast99(run);
 }
 
 // A first cluster holding many wrong links must not set the variance factor (docs/decisions.md,
@@ -245,10 +251,7 @@ TEST_CASE(
     "[datasets][irrr]") {
   const CorruptedRun run = RunCorrupted(
       "manhattan/vertigo/Olson/manhattanOlson3500.g2o", OutlierMode::kLocalGrouped, 1000, 3);
-  INFO(run.accepted_true << " of " << run.true_loops << " true loops accepted");
-  CHECK(run.accepted_wrong == 0);
-  CHECK(run.accepted_true >= 0.99 * run.true_loops);
-  CHECK(run.pending_in_clusters == 0);
+  CheckNoneWrongRecallAtLeast99(run);
   CHECK(LargestFactorDecidedAt(run.steps) < 0.05);
 }
 
@@ -263,10 +266,7 @@ TEST_CASE(
     "[datasets][irrr]") {
   const CorruptedRun run = RunCorrupted(
       "manhattan/vertigo/Olson/manhattanOlson3500.g2o", OutlierMode::kLocalGrouped, 1000, 1, 10);
-  INFO(run.accepted_true << " of " << run.true_loops << " true loops accepted");
-  CHECK(run.accepted_wrong == 0);
-  CHECK(run.accepted_true >= 0.99 * run.true_loops);
-  CHECK(run.pending_in_clusters == 0);
+  CheckNoneWrongRecallAtLeast99(run);
 }
 
 // Intel + 1000 random-grouped (seed 1): the group 480-482 -> 850-852 claims a pose 0.4 m and 5
@@ -278,10 +278,7 @@ TEST_CASE("Intel + 1000 random-grouped: the near-true wrong group stays out, rec
           "[datasets][irrr]") {
   const CorruptedRun run =
       RunCorrupted("intel/vertigo/intel.g2o", OutlierMode::kRandomGrouped, 1000, 1);
-  INFO(run.accepted_true << " of " << run.true_loops << " true loops accepted");
-  CHECK(run.accepted_wrong == 0);
-  CHECK(run.accepted_true >= 0.99 * run.true_loops);
-  CHECK(run.pending_in_clusters == 0);
+  CheckNoneWrongRecallAtLeast99(run);
 }
 
 // Vertigo's ring (434 poses, 26 true loops, heading information 60 times too loose) + 100
