@@ -121,15 +121,13 @@ void WarmEngine<Pose>::Impl::Calibrate(int q) {
   // noise. On conservative information (Manhattan's odometry) random links a few poses long
   // agree with the rest at the nominal scale.
   const std::vector<int>& all = book->clusters[q].links;
-  const double pair_factor = std::clamp(pairwise.PairwiseFactor(all), kNoiselessFactor, 1.0);
-  std::vector<int> links = pairwise.ConsistentSubsets(
-      all, PairwiseThreshold<Pose>(TestThresholds{options->alpha, pair_factor}))[0];
+  const double pair_factor = PairScale(all);
+  std::vector<int> links = LargestConsistent(all, pair_factor);
   bool concentrated = false;
   // With a factor known, the consistent set is the sample (Algorithm 1 judges its links).
   const int rounds = scale_known ? 1 : kCalibrationRounds;
   for (int round = 0; round < rounds && links.size() >= 2; ++round) {
-    const LocalSolution solution =
-        problems.Solve(problems.SessionsOf(links), links, AlignmentCap());
+    const LocalSolution solution = SolveLocal(links);
     const RedundancySample sample = ClusterRedundancy(pairwise, links, solution);
     if (!(sample.dof > 0.0)) break;
     book->clusters[q].redundancy_chi2 = sample.chi2;
@@ -173,13 +171,29 @@ std::vector<int> WarmEngine<Pose>::Impl::Concentrate(const std::vector<int>& all
   // links, 1 from all pairs, 0.011 from the consistent set's; its sample 1.9 -> 0.020). A step is
   // taken only when it lowers the scale by kConcentrationRatio.
   for (int step = 0; step < kConcentrationSteps && links.size() >= 3; ++step) {
-    const double inner = std::clamp(pairwise.PairwiseFactor(links), kNoiselessFactor, 1.0);
+    const double inner = PairScale(links);
     if (!(inner < kConcentrationRatio * pair_factor)) break;
     pair_factor = inner;
-    links = pairwise.ConsistentSubsets(
-        all, PairwiseThreshold<Pose>(TestThresholds{options->alpha, pair_factor}))[0];
+    links = LargestConsistent(all, pair_factor);
   }
   return links;
+}
+
+template <class Pose>
+double WarmEngine<Pose>::Impl::PairScale(const std::vector<int>& links) const {
+  return std::clamp(pairwise.PairwiseFactor(links), kNoiselessFactor, 1.0);
+}
+
+template <class Pose>
+std::vector<int> WarmEngine<Pose>::Impl::LargestConsistent(const std::vector<int>& links,
+                                                           double factor) const {
+  return pairwise.ConsistentSubsets(
+      links, PairwiseThreshold<Pose>(TestThresholds{options->alpha, factor}))[0];
+}
+
+template <class Pose>
+LocalSolution WarmEngine<Pose>::Impl::SolveLocal(const std::vector<int>& links) {
+  return problems.Solve(problems.SessionsOf(links), links, AlignmentCap());
 }
 
 template <class Pose>
@@ -189,7 +203,7 @@ std::vector<int> WarmEngine<Pose>::Impl::WithoutMostInfluential(const std::vecto
   for (size_t i = 0; i < links.size(); ++i) {
     std::vector<int> rest = links;
     rest.erase(rest.begin() + static_cast<std::ptrdiff_t>(i));
-    const LocalSolution solution = problems.Solve(problems.SessionsOf(rest), rest, AlignmentCap());
+    const LocalSolution solution = SolveLocal(rest);
     if (solution.ok() && solution.chi2 < best_chi2) {
       best_chi2 = solution.chi2;
       best = rest;
@@ -462,8 +476,7 @@ double WarmEngine<Pose>::Impl::LowestRunVariance(int q) {
   if (runs.size() < 2) return lowest;
   for (const std::vector<int>& run : runs) {
     if (run.size() < 2) continue;
-    const LocalSolution solution = problems.Solve(problems.SessionsOf(run), run, AlignmentCap());
-    const RedundancySample sample = ClusterRedundancy(pairwise, run, solution);
+    const RedundancySample sample = ClusterRedundancy(pairwise, run, SolveLocal(run));
     if (sample.dof >= kOwnFactorMinimumDof) lowest = std::min(lowest, sample.chi2 / sample.dof);
   }
   return lowest;

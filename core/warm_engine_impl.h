@@ -90,6 +90,13 @@ struct WarmEngine<Pose>::Impl {
   // `links` without the one whose removal lowers the local problem's chi2 most (empty: none
   // solved).
   std::vector<int> WithoutMostInfluential(const std::vector<int>& links);
+  // The scale the pairs of `links` imply (PairwiseConsistency::PairwiseFactor), within
+  // [kNoiselessFactor, 1].
+  double PairScale(const std::vector<int>& links) const;
+  // The largest subset of `links` pairwise consistent at variance factor `factor`.
+  std::vector<int> LargestConsistent(const std::vector<int>& links, double factor) const;
+  // Algorithm 1's local problem over `links` (LocalProblems), solved.
+  LocalSolution SolveLocal(const std::vector<int>& links);
 
   // ---- the good set --------------------------------------------------------------------------
 

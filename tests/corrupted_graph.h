@@ -7,6 +7,7 @@
 
 #include <catch2/catch.hpp>
 
+#include "core/decisions.h"
 #include "core/outliers.h"
 #include "tests/synthetic_graph.h"
 
@@ -35,10 +36,11 @@ struct Corrupted {
   std::vector<char> is_outlier;  // per edge of `graph`
 };
 
+// `clean` with MakeOutliers' wrong loops appended.
 template <class Pose>
-Corrupted<Pose> MakeCorrupted(const SyntheticOptions& synthetic, const OutlierOptions& outliers) {
+Corrupted<Pose> Corrupt(const PoseGraph<Pose>& clean, const OutlierOptions& outliers) {
   Corrupted<Pose> out;
-  out.clean = MakeSyntheticGraph<Pose>(synthetic).graph;
+  out.clean = clean;
   out.graph = out.clean;
   std::vector<OutlierLink<Pose>> links;
   const Status status = MakeOutliers(out.clean, outliers, &links);
@@ -51,6 +53,35 @@ Corrupted<Pose> MakeCorrupted(const SyntheticOptions& synthetic, const OutlierOp
     out.is_outlier.push_back(1);
   }
   return out;
+}
+
+template <class Pose>
+Corrupted<Pose> MakeCorrupted(const SyntheticOptions& synthetic, const OutlierOptions& outliers) {
+  return Corrupt(MakeSyntheticGraph<Pose>(synthetic).graph, outliers);
+}
+
+// Loops of a corrupted graph accepted by `decisions`, true and wrong.
+struct AcceptedLoops {
+  int true_loops = 0;
+  int accepted_true = 0;
+  int accepted_wrong = 0;
+};
+
+template <class Pose>
+AcceptedLoops CountAccepted(const Corrupted<Pose>& corrupted,
+                            const std::vector<LoopDecision>& decisions) {
+  AcceptedLoops count;
+  for (int e = 0; e < corrupted.graph.num_edges(); ++e) {
+    if (corrupted.graph.edge(e).kind != EdgeKind::kLoop) continue;
+    const bool accepted = decisions[e].state == LoopState::kAccepted;
+    if (corrupted.is_outlier[e]) {
+      count.accepted_wrong += accepted ? 1 : 0;
+    } else {
+      ++count.true_loops;
+      count.accepted_true += accepted ? 1 : 0;
+    }
+  }
+  return count;
 }
 
 }  // namespace testing

@@ -20,6 +20,7 @@
 #include "core/outliers.h"
 #include "core/test_statistics.h"
 #include "core/trajectory_metrics.h"
+#include "tests/corrupted_graph.h"
 
 namespace irrr {
 namespace {
@@ -178,34 +179,30 @@ struct CorruptedRun {
 CorruptedRun RunCorrupted(
     const std::string& relative, OutlierMode mode, int count, int seed, int group_size = 3) {
   GraphFile<Pose2> file;
-  PoseGraph<Pose2> graph;
-  REQUIRE(Load(relative, ReadOptions(), &file, &graph).ok());
+  PoseGraph<Pose2> clean;
+  REQUIRE(Load(relative, ReadOptions(), &file, &clean).ok());
   OutlierOptions outliers;
   outliers.mode = mode;
   outliers.count = count;
   outliers.seed = seed;
   outliers.group_size = group_size;
-  std::vector<OutlierLink<Pose2>> links;
-  REQUIRE(MakeOutliers(graph, outliers, &links).ok());
-  const int first_wrong = graph.num_edges();
+  const testing::Corrupted<Pose2> corrupted = testing::Corrupt(clean, outliers);
+  const PoseGraph<Pose2>& graph = corrupted.graph;
   CorruptedRun run;
-  run.true_loops = first_wrong - (graph.num_vertices() - graph.num_sessions());
-  for (const OutlierLink<Pose2>& link : links) {
-    REQUIRE(graph.AddLoop(link.from, link.to, link.measurement, link.information, nullptr).ok());
-  }
   const std::vector<LoopDecision> decisions =
       RunIncrementalIrrr<Pose2>(graph, IrrrOptions(), nullptr, &run.steps);
+  const testing::AcceptedLoops accepted = testing::CountAccepted(corrupted, decisions);
+  run.true_loops = accepted.true_loops;
+  run.accepted_true = accepted.accepted_true;
+  run.accepted_wrong = accepted.accepted_wrong;
   std::map<int, int> links_of_cluster;
   for (int e = 0; e < graph.num_edges(); ++e) {
     if (graph.edge(e).kind == EdgeKind::kLoop) ++links_of_cluster[decisions[e].cluster];
   }
   for (int e = 0; e < graph.num_edges(); ++e) {
-    if (graph.edge(e).kind != EdgeKind::kLoop) continue;
-    if (decisions[e].state == LoopState::kPending) {
+    if (graph.edge(e).kind == EdgeKind::kLoop && decisions[e].state == LoopState::kPending) {
       run.pending_in_clusters += links_of_cluster[decisions[e].cluster] >= 2 ? 1 : 0;
     }
-    if (decisions[e].state != LoopState::kAccepted) continue;
-    (e >= first_wrong ? run.accepted_wrong : run.accepted_true) += 1;
   }
   return run;
 }

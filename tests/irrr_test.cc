@@ -19,7 +19,10 @@
 namespace irrr {
 namespace {
 
+using testing::AcceptedLoops;
+using testing::Corrupt;
 using testing::Corrupted;
+using testing::CountAccepted;
 using testing::MakeCorrupted;
 using testing::MakeSyntheticGraph;
 using testing::NoisyWorld;
@@ -45,24 +48,13 @@ template <class Pose>
 void CheckNoOutlierAccepted(const Corrupted<Pose>& corrupted,
                             const std::vector<LoopDecision>& decisions,
                             const std::string& what) {
-  int accepted_outliers = 0;
-  int accepted_inliers = 0;
-  int inliers = 0;
-  for (int e = 0; e < corrupted.graph.num_edges(); ++e) {
-    if (corrupted.graph.edge(e).kind != EdgeKind::kLoop) continue;
-    const bool accepted = decisions[e].state == LoopState::kAccepted;
-    if (corrupted.is_outlier[e]) {
-      accepted_outliers += accepted ? 1 : 0;
-    } else {
-      ++inliers;
-      accepted_inliers += accepted ? 1 : 0;
-    }
-  }
-  INFO(accepted_inliers << " of " << inliers << " true loops accepted");
-  CHECK(accepted_outliers == 0);
-  REQUIRE(inliers > 0);
-  if (static_cast<double>(accepted_inliers) / inliers < kTargetRecall) {
-    WARN(what << ": recall below the target: " << accepted_inliers << " of " << inliers);
+  const AcceptedLoops count = CountAccepted(corrupted, decisions);
+  INFO(count.accepted_true << " of " << count.true_loops << " true loops accepted");
+  CHECK(count.accepted_wrong == 0);
+  REQUIRE(count.true_loops > 0);
+  if (static_cast<double>(count.accepted_true) / count.true_loops < kTargetRecall) {
+    WARN(what << ": recall below the target: " << count.accepted_true << " of "
+              << count.true_loops);
   }
 }
 
@@ -576,10 +568,7 @@ TEST_CASE("Runs of loops that share their error: the good set's variance factor 
 // own frame, plus 600 wrong loops in 200 internally consistent groups of 3 (random places, seed
 // `seed`), replayed through iRRR.
 struct PaperExperiment {
-  PoseGraph<Pose2> graph;
-  int first_outlier = 0;
-  int true_loops = 0;
-  int inter_session_outliers = 0;
+  Corrupted<Pose2> corrupted;
   std::vector<LoopDecision> decisions;
 };
 
@@ -589,32 +578,23 @@ PaperExperiment RunPaperExperiment(int seed) {
   GraphFile<Pose2> file;
   REQUIRE(ReadGraphFile(in, FileFormat::kG2o, ReadOptions(), &file).ok());
   REQUIRE(SplitIntoSessions<Pose2>({236, 472, 708}, &file).ok());
-  PaperExperiment run;
+  PoseGraph<Pose2> graph;
   std::vector<int> graph_edge_of_file_edge;
-  REQUIRE(BuildPoseGraph(file, &run.graph, &graph_edge_of_file_edge).ok());
-  REQUIRE(run.graph.num_sessions() == 4);
-  run.true_loops = run.graph.num_edges() - (run.graph.num_vertices() - run.graph.num_sessions());
-
+  REQUIRE(BuildPoseGraph(file, &graph, &graph_edge_of_file_edge).ok());
+  REQUIRE(graph.num_sessions() == 4);
   OutlierOptions outliers;
   outliers.mode = OutlierMode::kRandomGrouped;
   outliers.count = 600;
   outliers.group_size = 3;
   outliers.seed = seed;
-  std::vector<OutlierLink<Pose2>> links;
-  REQUIRE(MakeOutliers(run.graph, outliers, &links).ok());
-  REQUIRE(links.size() == 600);
-  run.first_outlier = run.graph.num_edges();
-  for (const OutlierLink<Pose2>& link : links) {
-    REQUIRE(
-        run.graph.AddLoop(link.from, link.to, link.measurement, link.information, nullptr).ok());
-    run.inter_session_outliers +=
-        run.graph.vertex(link.from).session != run.graph.vertex(link.to).session ? 1 : 0;
-  }
+  PaperExperiment run;
+  run.corrupted = Corrupt(graph, outliers);
+  REQUIRE(run.corrupted.graph.num_edges() - graph.num_edges() == 600);
   // Intel revisits its corridors constantly: with the reference's gap of 50 poses clusters grow
   // to hundreds of links; 10 poses keeps each to one revisit.
   IrrrOptions options;
   options.cluster_gap = 10.0;
-  run.decisions = RunIncrementalIrrr<Pose2>(run.graph, options, nullptr, nullptr);
+  run.decisions = RunIncrementalIrrr<Pose2>(run.corrupted.graph, options, nullptr, nullptr);
   return run;
 }
 
@@ -623,21 +603,25 @@ TEST_CASE(
     "Intel in four sessions with 200 wrong groups merges into one map and accepts no wrong loop",
     "[irrr][slow][intel]") {
   const PaperExperiment run = RunPaperExperiment(3);
+  const PoseGraph<Pose2>& graph = run.corrupted.graph;
   // Most random groups join two different sessions: the hard case of III.C.
-  CHECK(run.inter_session_outliers > 300);
-  int accepted_true = 0;
-  int accepted_wrong = 0;
-  std::vector<char> active(run.graph.num_edges(), 0);
-  for (int e = 0; e < run.graph.num_edges(); ++e) {
-    const bool accepted = run.decisions[e].state == LoopState::kAccepted;
-    active[e] = run.graph.edge(e).kind == EdgeKind::kOdometry || accepted;
-    if (run.graph.edge(e).kind != EdgeKind::kLoop || !accepted) continue;
-    (e >= run.first_outlier ? accepted_wrong : accepted_true) += 1;
+  int inter_session_outliers = 0;
+  for (int e = 0; e < graph.num_edges(); ++e) {
+    if (!run.corrupted.is_outlier[e]) continue;
+    inter_session_outliers +=
+        graph.vertex(graph.edge(e).from).session != graph.vertex(graph.edge(e).to).session ? 1 : 0;
   }
-  INFO(accepted_true << " of " << run.true_loops << " true loops accepted");
-  CHECK(accepted_wrong == 0);
-  CHECK(static_cast<double>(accepted_true) / run.true_loops >= kTargetRecall);
-  const std::vector<int> components = SessionComponents(run.graph, active);
+  CHECK(inter_session_outliers > 300);
+  const AcceptedLoops count = CountAccepted(run.corrupted, run.decisions);
+  INFO(count.accepted_true << " of " << count.true_loops << " true loops accepted");
+  CHECK(count.accepted_wrong == 0);
+  CHECK(static_cast<double>(count.accepted_true) / count.true_loops >= kTargetRecall);
+  std::vector<char> active(graph.num_edges(), 0);
+  for (int e = 0; e < graph.num_edges(); ++e) {
+    active[e] =
+        graph.edge(e).kind == EdgeKind::kOdometry || run.decisions[e].state == LoopState::kAccepted;
+  }
+  const std::vector<int> components = SessionComponents(graph, active);
   CHECK(components == std::vector<int>{0, 0, 0, 0});
 }
 
@@ -648,28 +632,25 @@ TEST_CASE(
 TEST_CASE("Intel in four sessions, seed 4: nothing is left pending but lone links",
           "[irrr][slow][intel]") {
   const PaperExperiment run = RunPaperExperiment(4);
+  const PoseGraph<Pose2>& graph = run.corrupted.graph;
   std::map<int, int> links_of_cluster;
-  for (int e = 0; e < run.graph.num_edges(); ++e) {
-    if (run.graph.edge(e).kind == EdgeKind::kLoop) ++links_of_cluster[run.decisions[e].cluster];
+  for (int e = 0; e < graph.num_edges(); ++e) {
+    if (graph.edge(e).kind == EdgeKind::kLoop) ++links_of_cluster[run.decisions[e].cluster];
   }
   int pending = 0;
-  int accepted_true = 0;
-  int accepted_wrong = 0;
-  for (int e = 0; e < run.graph.num_edges(); ++e) {
-    if (run.graph.edge(e).kind != EdgeKind::kLoop) continue;
+  for (int e = 0; e < graph.num_edges(); ++e) {
     const LoopDecision& decision = run.decisions[e];
-    if (decision.state == LoopState::kAccepted) {
-      (e >= run.first_outlier ? accepted_wrong : accepted_true) += 1;
-    }
-    if (decision.state != LoopState::kPending) continue;
+    if (graph.edge(e).kind != EdgeKind::kLoop || decision.state != LoopState::kPending) continue;
     ++pending;
-    INFO("loop " << run.graph.edge(e).from << " -> " << run.graph.edge(e).to << ", cluster "
+    INFO("loop " << graph.edge(e).from << " -> " << graph.edge(e).to << ", cluster "
                  << decision.cluster);
     CHECK(links_of_cluster[decision.cluster] == 1);
   }
-  INFO(pending << " pending, " << accepted_true << " of " << run.true_loops << " true accepted");
-  CHECK(accepted_wrong == 0);
-  CHECK(static_cast<double>(accepted_true) / run.true_loops >= kTargetRecall);
+  const AcceptedLoops count = CountAccepted(run.corrupted, run.decisions);
+  INFO(pending << " pending, " << count.accepted_true << " of " << count.true_loops
+               << " true accepted");
+  CHECK(count.accepted_wrong == 0);
+  CHECK(static_cast<double>(count.accepted_true) / count.true_loops >= kTargetRecall);
 }
 
 }  // namespace
