@@ -10,11 +10,6 @@
 namespace irrr {
 namespace {
 
-// A link whose linearized statistic is this many times its threshold, and kClusterMargin times its
-// cluster's median statistic, is rejected by the screen (random hypotheses score hundreds to
-// millions of times it; true clusters closing long cycles up to 5 on Manhattan, and a place
-// recognizer's agreeing links stand off together: KITTI 05, 17 links at 4.3 times).
-constexpr double kScreenMargin = 4.0;
 // The smallest pairwise factor Calibrate uses (a noiseless cluster's pairs score 0).
 constexpr double kNoiselessFactor = 1e-6;
 // A cluster of one link needs at least this redundancy number to be judged (Unsupported).
@@ -245,6 +240,7 @@ void WarmEngine<Pose>::Impl::Step(int k, StepResult* result) {
     if (k >= 0 && GoodLinks() != good_before) {
       for (int q : Waiting()) Judge(q, result);
     }
+    ReverseStrained(result);
   }
   std::vector<int>& changed = result->changed_loops;
   std::sort(changed.begin(), changed.end());

@@ -28,6 +28,13 @@ struct WarmEngine<Pose>::Impl {
   // statistic alone is kClusterMargin times the cluster's threshold is not tried (MayPass;
   // nonlinear over linearized increase: 0.5-3.5 on Manhattan and Intel).
   static constexpr double kClusterMargin = 20.0;
+  // A link whose linearized statistic is this many times its threshold, and kClusterMargin times
+  // its cluster's median statistic, is rejected by the screen (random hypotheses score hundreds to
+  // millions of times it; true clusters closing long cycles up to 5 on Manhattan, and a place
+  // recognizer's agreeing links stand off together: KITTI 05, 17 links at 4.3 times). A good
+  // link that fails its link test is reversed if its removal statistic is this far off
+  // (ReverseStrained).
+  static constexpr double kScreenMargin = 4.0;
 
   Impl(const PoseGraph<Pose>* g,
        const IrrrOptions* o,
@@ -200,6 +207,11 @@ struct WarmEngine<Pose>::Impl {
   // 0 (the global factor) otherwise. At most kOwnFactorRatio times the global factor and 1: wrong
   // links raise a cluster's own factor (Sphere2500 + 1000 random: to 6.9, seven wrong loops in).
   double OwnVariance(int q) const;
+  // The link threshold at cluster q's own factor (OwnVariance), or at the global one.
+  double OwnLinkThreshold(int q) const {
+    const double own = OwnVariance(q);
+    return TestThresholds{options->alpha, own > 0.0 ? own : variance, variance_dof}.Of(d);
+  }
   // The lowest own factor (chi2 over degrees of freedom of Algorithm 1's optimum) among the runs
   // of cluster q (Runs) with kOwnFactorMinimumDof of redundancy; infinity for a cluster of one
   // run or none with that much (short runs' factors are too noisy: Intel lost 4-9% recall). A
@@ -260,6 +272,16 @@ struct WarmEngine<Pose>::Impl {
   // today's, are judged again (Rejudge). Refusals are recorded by NoteRefusals at the end of each
   // step.
   void RejudgeRefused(StepResult* result);
+
+  // Reversing a link that later evidence outvotes: a good link that no longer passes its link test
+  // at the current optimum (d^2 at least its cluster's link threshold, OwnLinkThreshold) and whose
+  // removal statistic is kScreenMargin times that threshold (the screen would refuse it now)
+  // leaves its cluster and the good set and is judged again alone (Rejudge), the largest removal
+  // statistic first. A wrong link that only odometry checked when it was accepted fits by bending
+  // that odometry; clusters accepted later pin the bend, and the link's residual grows. True links
+  // whose matches share their error strain too, but the rest of the good set barely disagrees
+  // with them (Intel's 74 -> 898: d^2 1.37 times its threshold, removal statistic 2.1 times).
+  void ReverseStrained(StepResult* result);
   void NoteRefusals(const std::vector<int>& changed);
 
   // Recovering: clusters that have left the good set get back every link they held when they

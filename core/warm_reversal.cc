@@ -18,6 +18,9 @@ constexpr double kRevalidateRatio = 2.0;
 constexpr double kRefusedRatio = 1.2;
 // Clusters that challenge good ones at once (Challenge), largest first.
 constexpr size_t kMaxChallengers = 8;
+// Strained good links judged again in one step at most (ReverseStrained; each costs a rebuild of
+// the good set).
+constexpr int kMaxStrained = 8;
 
 bool IsRefusal(LoopState state) {
   return state == LoopState::kRejectedLinkTest || state == LoopState::kRejectedClusterTest ||
@@ -40,6 +43,47 @@ void WarmEngine<Pose>::Impl::Revalidate(StepResult* result) {
   good.Rebuild(GoodLoops(), AlignmentCap());
   Rejudge(suspects, result);
   result->reversals += static_cast<int>(suspects.size());
+}
+
+template <class Pose>
+void WarmEngine<Pose>::Impl::ReverseStrained(StepResult* result) {
+  for (int round = 0; round < kMaxStrained; ++round) {
+    // Good links failing their link test, as (link, cluster, threshold).
+    std::vector<int> strained;
+    std::vector<int> cluster_of;
+    std::vector<double> threshold_of;
+    for (int g = 0; g < static_cast<int>(book->clusters.size()); ++g) {
+      const JudgedCluster& c = book->clusters[g];
+      if (!c.in_good) continue;
+      const double threshold = OwnLinkThreshold(g);
+      for (int e : c.links) {
+        if (good.EdgeChi2(e) < threshold) continue;
+        strained.push_back(e);
+        cluster_of.push_back(g);
+        threshold_of.push_back(threshold);
+      }
+    }
+    if (strained.empty()) return;
+    std::vector<std::vector<int>> alone;
+    for (int e : strained) alone.push_back({e});
+    const std::vector<double> removal = good.LinearizeRemovals(alone);
+    int worst = -1;
+    double worst_ratio = kScreenMargin;
+    for (size_t k = 0; k < strained.size(); ++k) {
+      const double ratio = removal[k] / threshold_of[k];
+      if (ratio >= worst_ratio) {
+        worst_ratio = ratio;
+        worst = static_cast<int>(k);
+      }
+    }
+    if (worst < 0) return;
+    const int g = cluster_of[worst];
+    const int part = book->clusters[g].links.size() == 1 ? g : SplitOff(g, {strained[worst]});
+    book->clusters[part].in_good = false;
+    good.Rebuild(GoodLoops(), AlignmentCap());
+    Rejudge({part}, result);
+    ++result->reversals;
+  }
 }
 
 template <class Pose>
@@ -275,6 +319,7 @@ void WarmEngine<Pose>::Impl::Recover(int since,
 #define IRRR_INSTANTIATE_REVERSAL(Pose)                                                        \
   template void WarmEngine<Pose>::Impl::Revalidate(StepResult*);                               \
   template void WarmEngine<Pose>::Impl::RejudgeRefused(StepResult*);                           \
+  template void WarmEngine<Pose>::Impl::ReverseStrained(StepResult*);                          \
   template void WarmEngine<Pose>::Impl::NoteRefusals(const std::vector<int>&);                 \
   template void WarmEngine<Pose>::Impl::Rejudge(std::vector<int>, StepResult*);                \
   template void WarmEngine<Pose>::Impl::Challenge(                                             \

@@ -237,6 +237,21 @@ TEST_CASE("Manhattan + 1000 local wrong loops: none accepted, recall at least 0.
   CheckNoneWrongRecallAtLeast99(run);
 }
 
+// Manhattan + 1000 local wrong loops, seed 2: the wrong link 910 -> 870 (3.4 m and 0.5 rad off)
+// came in with a true revisit of 39 links, none of which tied 910 to 870, and passed by bending
+// the odometry around 910 (its d^2 a third of its threshold). Clusters accepted later pin that
+// odometry: its d^2 fails its link test (1.5 times the threshold) and its removal statistic is
+// 13.4 times it, so it is judged again alone and reversed (ReverseStrained).
+TEST_CASE("Manhattan + 1000 local, seed 2: a good link later clusters outvote is reversed",
+          "[datasets][irrr]") {
+  const CorruptedRun run =
+      RunCorrupted("manhattan/vertigo/Olson/manhattanOlson3500.g2o", OutlierMode::kLocal, 1000, 2);
+  CheckNoneWrongRecallAtLeast99(run);
+  int reversals = 0;
+  for (const StepResult& step : run.steps) reversals += step.reversals;
+  CHECK(reversals >= 1);
+}
+
 // A first cluster holding many wrong links must not set the variance factor (docs/decisions.md,
 // "The variance factor"). Manhattan + 1000 local-grouped, seed 3: the first cluster has 132
 // links, the median of all their pairs says 1, and its consistent set's sample 1.9; before the
