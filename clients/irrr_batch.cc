@@ -33,6 +33,7 @@
 #include "core/graph_io.h"
 #include "core/irrr.h"
 #include "core/optimizer.h"
+#include "core/test_statistics.h"
 #include "core/trajectory_metrics.h"
 #include "daemon/common/allocator.h"
 #include "daemon/common/irrr_config.h"
@@ -197,6 +198,18 @@ int Run(const BatchArguments& args, const IrrrOptions& options, FileFormat forma
         solve_s,
         1e3 * solve_s / std::max(1, summary.iterations));
     if (!summary.IsSolutionUsable()) exit_code = EX_SOFTWARE;
+    // Each loop's d^2 at the trusting optimum against the link test at the optimum's own variance
+    // factor (chi2 over degrees of freedom): the loops the rest of the graph disagrees with.
+    const double dof = static_cast<double>(Pose::kDim) *
+                       (graph.num_edges() - graph.num_vertices() + summary.num_components);
+    if (dof > 0.0) {
+      const TestThresholds at_optimum{options.alpha, summary.final_chi2 / dof, dof};
+      for (int e = 0; e < graph.num_edges(); ++e) {
+        if (graph.edge(e).kind != EdgeKind::kLoop) continue;
+        decisions[e].chi2 = EdgeChi2(graph.edge(e), estimate);
+        decisions[e].threshold = at_optimum.Of(Pose::kDim);
+      }
+    }
   } else {
     const auto decide_start = std::chrono::steady_clock::now();
     // On a terminal, a progress line on stderr while deciding (ProgressLine); nothing otherwise.

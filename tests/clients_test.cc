@@ -20,6 +20,7 @@
 #include "clients/common/graph_files.h"
 #include "clients/common/loop_csv.h"
 #include "core/graph_io.h"
+#include "core/test_statistics.h"
 #include "daemon/common/irrr_config.h"
 #include "tests/test_files.h"
 
@@ -566,6 +567,51 @@ TEST_CASE("irrr-corrupt splits Intel into four sessions with 600 inter-session o
   INFO(batch << "\n" << ReadText(log));
   CHECK(code == 0);
   CHECK_THAT(ReadText(log), Contains("943 poses in 4 session(s), 939 odometry edges"));
+}
+
+// With --method none the decisions CSV gives each loop's d^2 at the trusting optimum and the link
+// test's bound at that optimum's own variance factor: one wrong loop added to Intel's first 300
+// poses (171 true loops) stands above it (three times, though it inflates the factor itself) and
+// above every other loop, and the bound is that of a d^2 over the factor estimated from the
+// optimum's 516 degrees of freedom.
+TEST_CASE("irrr-batch --method none: each loop's d^2 at the trusting optimum against the link test",
+          "[tools]") {
+  const std::string dir = TestDirectory("trusting_link_test");
+  const std::string graph_path = dir + "/intel300_wrong.g2o";
+  WriteIntelPrefix(300, graph_path);
+  {
+    std::ofstream out(graph_path, std::ios::app);
+    out << "EDGE_SE2 250 60 3 -2 1.2 500 0 0 500 0 5000\n";
+  }
+  const std::string decisions = dir + "/decisions.csv";
+  const std::string log = dir + "/log.txt";
+  const std::string batch = std::string(IRRR_BATCH) + " " + Quoted(graph_path) +
+                            " --method none --decisions " + Quoted(decisions);
+  const int code = RunTool(batch, log);
+  INFO(batch << "\n" << ReadText(log));
+  REQUIRE(code == 0);
+  const std::vector<DecisionRow> rows = ReadCsv<DecisionRow>(decisions, &ReadDecisionsCsv);
+  REQUIRE(rows.size() == 172);
+  const DecisionRow& wrong = rows.back();
+  REQUIRE(wrong.from == 250);
+  REQUIRE(wrong.to == 60);
+  CHECK(wrong.decision.chi2 > 2.0 * wrong.decision.threshold);
+  int failing = 0;
+  for (const DecisionRow& row : rows) {
+    failing += row.decision.chi2 > row.decision.threshold ? 1 : 0;
+    if (&row != &wrong) CHECK(row.decision.chi2 < wrong.decision.chi2 / 4.0);
+  }
+  CHECK(failing == 1);
+  // The bound at the factor chi2 / dof of the optimum, from the tool's own line (near chi2_3(0.999)
+  // = 16.27 times the factor).
+  const std::string text = ReadText(log);
+  const size_t arrow = text.find(" -> ");
+  REQUIRE(arrow != std::string::npos);
+  const double chi2 = std::stod(text.substr(arrow + 4));
+  const double dof = 3.0 * 172;  // the loops' rows (odometry alone is a tree)
+  CHECK(wrong.decision.threshold ==
+        Approx(ScaledChiSquareThreshold(0.999, 3.0, chi2 / dof, dof)).epsilon(1e-5));
+  CHECK(wrong.decision.threshold == Approx(16.27 * chi2 / dof).epsilon(0.05));
 }
 
 TEST_CASE("The tools exit with sysexits codes", "[tools]") {
