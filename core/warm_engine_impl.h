@@ -8,6 +8,7 @@
 
 #include <algorithm>
 #include <limits>
+#include <utility>
 #include <vector>
 
 #include "core/decisions.h"
@@ -273,15 +274,20 @@ struct WarmEngine<Pose>::Impl {
   // step.
   void RejudgeRefused(StepResult* result);
 
-  // Reversing a link that later evidence outvotes: a good link that no longer passes its link test
-  // at the current optimum (d^2 at least its cluster's link threshold, OwnLinkThreshold) and whose
-  // removal statistic is kScreenMargin times that threshold (the screen would refuse it now)
-  // leaves its cluster and the good set and is judged again alone (Rejudge), the largest removal
-  // statistic first. A wrong link that only odometry checked when it was accepted fits by bending
-  // that odometry; clusters accepted later pin the bend, and the link's residual grows. True links
-  // whose matches share their error strain too, but the rest of the good set barely disagrees
-  // with them (Intel's 74 -> 898: d^2 1.37 times its threshold, removal statistic 2.1 times).
+  // Reversing what later evidence outvotes. The candidates: each good link that no longer passes
+  // its link test at the current optimum (d^2 at least its cluster's link threshold,
+  // OwnLinkThreshold), and each run of a good cluster whose odometry bends (BendingRuns). The one
+  // whose removal statistic over its threshold is largest, if kScreenMargin or more (the screen
+  // would refuse it now), leaves its cluster and the good set and is judged again on its own
+  // (Rejudge); then again, at most kMaxStrained times a step. A wrong link or group that only
+  // odometry checked when it was accepted fits by bending that odometry; clusters accepted later
+  // pin the bend, and its residuals or the odometry's grow. True links whose matches share their
+  // error strain too, but the rest of the good set barely disagrees with them (Intel's 74 -> 898:
+  // d^2 1.37 times its threshold, removal statistic 2.1 times).
   void ReverseStrained(StepResult* result);
+  // The runs (Runs) of good clusters within one session, accepted before this step, whose span
+  // holds an odometry edge that fails the link test at the current optimum, with their clusters.
+  std::vector<std::pair<int, std::vector<int>>> BendingRuns() const;
   void NoteRefusals(const std::vector<int>& changed);
 
   // Recovering: clusters that have left the good set get back every link they held when they

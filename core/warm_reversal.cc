@@ -18,7 +18,7 @@ constexpr double kRevalidateRatio = 2.0;
 constexpr double kRefusedRatio = 1.2;
 // Clusters that challenge good ones at once (Challenge), largest first.
 constexpr size_t kMaxChallengers = 8;
-// Strained good links judged again in one step at most (ReverseStrained; each costs a rebuild of
+// Good links or runs that ReverseStrained reverses in one step at most (each costs a rebuild of
 // the good set).
 constexpr int kMaxStrained = 8;
 
@@ -48,8 +48,8 @@ void WarmEngine<Pose>::Impl::Revalidate(StepResult* result) {
 template <class Pose>
 void WarmEngine<Pose>::Impl::ReverseStrained(StepResult* result) {
   for (int round = 0; round < kMaxStrained; ++round) {
-    // Good links failing their link test, as (link, cluster, threshold).
-    std::vector<int> strained;
+    // The candidates: groups of good links, each with its cluster and threshold.
+    std::vector<std::vector<int>> groups;
     std::vector<int> cluster_of;
     std::vector<double> threshold_of;
     for (int g = 0; g < static_cast<int>(book->clusters.size()); ++g) {
@@ -58,18 +58,21 @@ void WarmEngine<Pose>::Impl::ReverseStrained(StepResult* result) {
       const double threshold = OwnLinkThreshold(g);
       for (int e : c.links) {
         if (good.EdgeChi2(e) < threshold) continue;
-        strained.push_back(e);
+        groups.push_back({e});
         cluster_of.push_back(g);
         threshold_of.push_back(threshold);
       }
     }
-    if (strained.empty()) return;
-    std::vector<std::vector<int>> alone;
-    for (int e : strained) alone.push_back({e});
-    const std::vector<double> removal = good.LinearizeRemovals(alone);
+    for (const auto& [g, run] : BendingRuns()) {
+      groups.push_back(run);
+      cluster_of.push_back(g);
+      threshold_of.push_back(Threshold(d * static_cast<double>(run.size())));
+    }
+    if (groups.empty()) return;
+    const std::vector<double> removal = good.LinearizeRemovals(groups);
     int worst = -1;
     double worst_ratio = kScreenMargin;
-    for (size_t k = 0; k < strained.size(); ++k) {
+    for (size_t k = 0; k < groups.size(); ++k) {
       const double ratio = removal[k] / threshold_of[k];
       if (ratio >= worst_ratio) {
         worst_ratio = ratio;
@@ -78,12 +81,47 @@ void WarmEngine<Pose>::Impl::ReverseStrained(StepResult* result) {
     }
     if (worst < 0) return;
     const int g = cluster_of[worst];
-    const int part = book->clusters[g].links.size() == 1 ? g : SplitOff(g, {strained[worst]});
+    const int part =
+        groups[worst].size() == book->clusters[g].links.size() ? g : SplitOff(g, groups[worst]);
     book->clusters[part].in_good = false;
     good.Rebuild(GoodLoops(), AlignmentCap());
     Rejudge({part}, result);
     ++result->reversals;
   }
+}
+
+template <class Pose>
+std::vector<std::pair<int, std::vector<int>>> WarmEngine<Pose>::Impl::BendingRuns() const {
+  std::vector<std::pair<int, int>> strained;  // (session, first vertex) of odometry edges
+  for (int e = 0; e < graph->num_edges(); ++e) {
+    const Edge<Pose>& edge = graph->edge(e);
+    if (edge.kind != EdgeKind::kOdometry) continue;
+    const int session = graph->vertex(edge.from).session;
+    if (good.ComponentOf(session) < 0 || good.EdgeChi2(e) < LinkThreshold()) continue;
+    strained.push_back({session, std::min(edge.from, edge.to)});
+  }
+  std::vector<std::pair<int, std::vector<int>>> bending;
+  if (strained.empty()) return bending;
+  for (int g = 0; g < static_cast<int>(book->clusters.size()); ++g) {
+    const JudgedCluster& c = book->clusters[g];
+    if (!c.in_good || c.links.empty() || c.session_a != c.session_b ||
+        book->decisions[c.links.front()].step >= book->step) {
+      continue;
+    }
+    for (std::vector<int>& run : Runs(c.links)) {
+      int lo = std::numeric_limits<int>::max();
+      int hi = -1;
+      for (int e : run) {
+        lo = std::min({lo, graph->edge(e).from, graph->edge(e).to});
+        hi = std::max({hi, graph->edge(e).from, graph->edge(e).to});
+      }
+      const bool spans = std::any_of(strained.begin(), strained.end(), [&](const auto& s) {
+        return s.first == c.session_a && lo <= s.second && s.second < hi;
+      });
+      if (spans) bending.push_back({g, std::move(run)});
+    }
+  }
+  return bending;
 }
 
 template <class Pose>
@@ -320,6 +358,8 @@ void WarmEngine<Pose>::Impl::Recover(int since,
   template void WarmEngine<Pose>::Impl::Revalidate(StepResult*);                               \
   template void WarmEngine<Pose>::Impl::RejudgeRefused(StepResult*);                           \
   template void WarmEngine<Pose>::Impl::ReverseStrained(StepResult*);                          \
+  template std::vector<std::pair<int, std::vector<int>>> WarmEngine<Pose>::Impl::BendingRuns() \
+      const;                                                                                   \
   template void WarmEngine<Pose>::Impl::NoteRefusals(const std::vector<int>&);                 \
   template void WarmEngine<Pose>::Impl::Rejudge(std::vector<int>, StepResult*);                \
   template void WarmEngine<Pose>::Impl::Challenge(                                             \
