@@ -200,13 +200,12 @@ int Run(const BatchArguments& args, const IrrrOptions& options, FileFormat forma
     if (!summary.IsSolutionUsable()) exit_code = EX_SOFTWARE;
     // Each loop's d^2 at the trusting optimum against the link test at the optimum's own variance
     // factor (chi2 over degrees of freedom): the loops the rest of the graph disagrees with.
-    const double dof = static_cast<double>(Pose::kDim) *
-                       (graph.num_edges() - graph.num_vertices() + summary.num_components);
+    const double dof = summary.residual_dimension - summary.free_parameters;
     if (dof > 0.0) {
       const TestThresholds at_optimum{options.alpha, summary.final_chi2 / dof, dof};
       for (int e = 0; e < graph.num_edges(); ++e) {
         if (graph.edge(e).kind != EdgeKind::kLoop) continue;
-        decisions[e].chi2 = EdgeChi2(graph.edge(e), estimate);
+        decisions[e].chi2 = summary.edge_chi2[e];
         decisions[e].threshold = at_optimum.Of(Pose::kDim);
       }
     }

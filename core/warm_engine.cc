@@ -240,7 +240,7 @@ void WarmEngine<Pose>::Impl::Step(int k, StepResult* result) {
     if (k >= 0 && GoodLinks() != good_before) {
       for (int q : Waiting()) Judge(q, result);
     }
-    ReverseStrained(result);
+    ReverseOutvoted(result);
   }
   std::vector<int>& changed = result->changed_loops;
   std::sort(changed.begin(), changed.end());

@@ -34,7 +34,7 @@ struct WarmEngine<Pose>::Impl {
   // millions of times it; true clusters closing long cycles up to 5 on Manhattan, and a place
   // recognizer's agreeing links stand off together: KITTI 05, 17 links at 4.3 times). A good
   // link that fails its link test is reversed if its removal statistic is this far off
-  // (ReverseStrained).
+  // (ReverseOutvoted).
   static constexpr double kScreenMargin = 4.0;
 
   Impl(const PoseGraph<Pose>* g,
@@ -54,9 +54,12 @@ struct WarmEngine<Pose>::Impl {
 
   // ---- thresholds and the variance factor -------------------------------------------------
 
+  // The tests' thresholds at variance factor `factor` (known as well as the global one).
+  TestThresholds ThresholdsAt(double factor) const {
+    return TestThresholds{options->alpha, factor, variance_dof};
+  }
   TestThresholds Thresholds() const {
-    return TestThresholds{
-        options->alpha, test_variance > 0.0 ? test_variance : variance, variance_dof};
+    return ThresholdsAt(test_variance > 0.0 ? test_variance : variance);
   }
   double Threshold(double dof) const { return Thresholds().Of(dof); }
   double LinkThreshold() const { return Threshold(d); }
@@ -211,7 +214,7 @@ struct WarmEngine<Pose>::Impl {
   // The link threshold at cluster q's own factor (OwnVariance), or at the global one.
   double OwnLinkThreshold(int q) const {
     const double own = OwnVariance(q);
-    return TestThresholds{options->alpha, own > 0.0 ? own : variance, variance_dof}.Of(d);
+    return ThresholdsAt(own > 0.0 ? own : variance).Of(d);
   }
   // The lowest own factor (chi2 over degrees of freedom of Algorithm 1's optimum) among the runs
   // of cluster q (Runs) with kOwnFactorMinimumDof of redundancy; infinity for a cluster of one
@@ -279,12 +282,12 @@ struct WarmEngine<Pose>::Impl {
   // OwnLinkThreshold), and each run of a good cluster whose odometry bends (BendingRuns). The one
   // whose removal statistic over its threshold is largest, if kScreenMargin or more (the screen
   // would refuse it now), leaves its cluster and the good set and is judged again on its own
-  // (Rejudge); then again, at most kMaxStrained times a step. A wrong link or group that only
-  // odometry checked when it was accepted fits by bending that odometry; clusters accepted later
-  // pin the bend, and its residuals or the odometry's grow. True links whose matches share their
-  // error strain too, but the rest of the good set barely disagrees with them (Intel's 74 -> 898:
-  // d^2 1.37 times its threshold, removal statistic 2.1 times).
-  void ReverseStrained(StepResult* result);
+  // (Rejudge); then again, at most kMaxOutvotedPerStep times a step. A wrong link or group that
+  // only odometry checked when it was accepted fits by bending that odometry; clusters accepted
+  // later pin the bend, and its residuals or the odometry's grow. True links whose matches share
+  // their error strain too, but the rest of the good set barely disagrees with them (Intel's 74 ->
+  // 898: d^2 1.37 times its threshold, removal statistic 2.1 times).
+  void ReverseOutvoted(StepResult* result);
   // The runs (Runs) of good clusters within one session, accepted before this step, whose span
   // holds an odometry edge that fails the link test at the current optimum, with their clusters.
   std::vector<std::pair<int, std::vector<int>>> BendingRuns() const;

@@ -18,9 +18,9 @@ constexpr double kRevalidateRatio = 2.0;
 constexpr double kRefusedRatio = 1.2;
 // Clusters that challenge good ones at once (Challenge), largest first.
 constexpr size_t kMaxChallengers = 8;
-// Good links or runs that ReverseStrained reverses in one step at most (each costs a rebuild of
+// Good links or runs that ReverseOutvoted reverses in one step at most (each costs a rebuild of
 // the good set).
-constexpr int kMaxStrained = 8;
+constexpr int kMaxOutvotedPerStep = 8;
 
 bool IsRefusal(LoopState state) {
   return state == LoopState::kRejectedLinkTest || state == LoopState::kRejectedClusterTest ||
@@ -46,8 +46,8 @@ void WarmEngine<Pose>::Impl::Revalidate(StepResult* result) {
 }
 
 template <class Pose>
-void WarmEngine<Pose>::Impl::ReverseStrained(StepResult* result) {
-  for (int round = 0; round < kMaxStrained; ++round) {
+void WarmEngine<Pose>::Impl::ReverseOutvoted(StepResult* result) {
+  for (int round = 0; round < kMaxOutvotedPerStep; ++round) {
     // The candidates: groups of good links, each with its cluster and threshold.
     std::vector<std::vector<int>> groups;
     std::vector<int> cluster_of;
@@ -357,7 +357,7 @@ void WarmEngine<Pose>::Impl::Recover(int since,
 #define IRRR_INSTANTIATE_REVERSAL(Pose)                                                        \
   template void WarmEngine<Pose>::Impl::Revalidate(StepResult*);                               \
   template void WarmEngine<Pose>::Impl::RejudgeRefused(StepResult*);                           \
-  template void WarmEngine<Pose>::Impl::ReverseStrained(StepResult*);                          \
+  template void WarmEngine<Pose>::Impl::ReverseOutvoted(StepResult*);                          \
   template std::vector<std::pair<int, std::vector<int>>> WarmEngine<Pose>::Impl::BendingRuns() \
       const;                                                                                   \
   template void WarmEngine<Pose>::Impl::NoteRefusals(const std::vector<int>&);                 \

@@ -3,6 +3,7 @@
 
 // A synthetic world with MakeOutliers' wrong loops appended, for the iRRR and speed tests.
 
+#include <map>
 #include <vector>
 
 #include <catch2/catch.hpp>
@@ -82,6 +83,25 @@ AcceptedLoops CountAccepted(const Corrupted<Pose>& corrupted,
     }
   }
   return count;
+}
+
+// The loops `decisions` leave pending in a cluster of two links or more (only a lone link nothing
+// can check yet may wait for good).
+template <class Pose>
+std::vector<int> PendingInClusters(const PoseGraph<Pose>& graph,
+                                   const std::vector<LoopDecision>& decisions) {
+  std::map<int, int> links_of_cluster;
+  for (int e = 0; e < graph.num_edges(); ++e) {
+    if (graph.edge(e).kind == EdgeKind::kLoop) ++links_of_cluster[decisions[e].cluster];
+  }
+  std::vector<int> pending;
+  for (int e = 0; e < graph.num_edges(); ++e) {
+    if (graph.edge(e).kind == EdgeKind::kLoop && decisions[e].state == LoopState::kPending &&
+        links_of_cluster[decisions[e].cluster] >= 2) {
+      pending.push_back(e);
+    }
+  }
+  return pending;
 }
 
 }  // namespace testing

@@ -6,7 +6,6 @@
 
 #include <algorithm>
 #include <fstream>
-#include <map>
 #include <set>
 #include <string>
 #include <utility>
@@ -195,15 +194,7 @@ CorruptedRun RunCorrupted(
   run.true_loops = accepted.true_loops;
   run.accepted_true = accepted.accepted_true;
   run.accepted_wrong = accepted.accepted_wrong;
-  std::map<int, int> links_of_cluster;
-  for (int e = 0; e < graph.num_edges(); ++e) {
-    if (graph.edge(e).kind == EdgeKind::kLoop) ++links_of_cluster[decisions[e].cluster];
-  }
-  for (int e = 0; e < graph.num_edges(); ++e) {
-    if (graph.edge(e).kind == EdgeKind::kLoop && decisions[e].state == LoopState::kPending) {
-      run.pending_in_clusters += links_of_cluster[decisions[e].cluster] >= 2 ? 1 : 0;
-    }
-  }
+  run.pending_in_clusters = static_cast<int>(testing::PendingInClusters(graph, decisions).size());
   return run;
 }
 
@@ -244,7 +235,7 @@ TEST_CASE("Manhattan + 1000 local wrong loops: none accepted, recall at least 0.
   CheckNoneWrongRecallAtLeast99(run);
 }
 
-// What later evidence outvotes is reversed (ReverseStrained; docs/decisions.md, "Reversing and
+// What later evidence outvotes is reversed (ReverseOutvoted; docs/decisions.md, "Reversing and
 // recovering"). Both came in with a true revisit at steps 6-7 and fitted by bending the odometry,
 // and both stayed to the end before:
 // - Manhattan + 1000 local, seed 2: the wrong link 910 -> 870 (3.4 m and 0.5 rad off). Clusters
