@@ -377,15 +377,9 @@ std::vector<std::vector<int>> WarmEngine<Pose>::Impl::Runs(const std::vector<int
   std::vector<int> run(links.size());
   for (size_t k = 0; k < links.size(); ++k) run[k] = static_cast<int>(k);
   std::function<int(int)> root = [&](int k) { return run[k] == k ? k : run[k] = root(run[k]); };
-  auto near = [this](int a, int b) {
-    const Edge<Pose>& x = graph->edge(a);
-    const Edge<Pose>& y = graph->edge(b);
-    return std::abs(std::min(x.from, x.to) - std::min(y.from, y.to)) <= kRunGap &&
-           std::abs(std::max(x.from, x.to) - std::max(y.from, y.to)) <= kRunGap;
-  };
   for (size_t a = 0; a < links.size(); ++a) {
     for (size_t b = 0; b < a; ++b) {
-      if (near(links[a], links[b])) run[root(static_cast<int>(a))] = root(static_cast<int>(b));
+      if (Near(links[a], links[b])) run[root(static_cast<int>(a))] = root(static_cast<int>(b));
     }
   }
   std::vector<std::vector<int>> runs;
@@ -409,6 +403,24 @@ std::vector<std::vector<int>> WarmEngine<Pose>::Impl::Runs(const std::vector<int
   }
   if (!lone.empty()) parts.push_back(lone);
   return parts;
+}
+
+template <class Pose>
+bool WarmEngine<Pose>::Impl::Near(int a, int b) const {
+  const Edge<Pose>& x = graph->edge(a);
+  const Edge<Pose>& y = graph->edge(b);
+  return std::abs(std::min(x.from, x.to) - std::min(y.from, y.to)) <= kRunGap &&
+         std::abs(std::max(x.from, x.to) - std::max(y.from, y.to)) <= kRunGap;
+}
+
+template <class Pose>
+bool WarmEngine<Pose>::Impl::AllLone(const std::vector<int>& links) const {
+  for (size_t a = 0; a < links.size(); ++a) {
+    for (size_t b = 0; b < a; ++b) {
+      if (Near(links[a], links[b])) return false;
+    }
+  }
+  return true;
 }
 
 template <class Pose>
@@ -531,6 +543,29 @@ void WarmEngine<Pose>::Impl::JointTestAtScale(int q, StepResult* result) {
       good.Rollback();
       JudgeRuns(q, runs, result);
       return;
+    }
+    // Lone links judged together (no two near each other) that fail as a whole: those that would
+    // fail on their own too (linearized statistic alone against the good set at least the link
+    // threshold at the global factor: unrelated links share no error, and wrong ones among them
+    // raise the group's own factor) leave, and the rest is judged again.
+    if (links.size() >= 2 && AllLone(links)) {
+      good.Rollback();
+      const std::vector<double> statistic = LinkStatistics(links);
+      const double alone = ThresholdsAt(variance).Of(d);
+      std::vector<int> kept;
+      for (size_t k = 0; k < links.size(); ++k) {
+        if (statistic[k] < alone) {
+          kept.push_back(links[k]);
+        } else {
+          book->Set(links[k], LoopState::kRejectedJointTest, statistic[k], alone, changed);
+        }
+      }
+      if (!kept.empty() && kept.size() < links.size()) {
+        links = kept;
+        continue;
+      }
+      if (kept.empty()) break;
+      good.Try(links, AlignmentCap(), MaxIncrease(links));  // the trial again, for the suspects
     }
     // With the good clusters that are inconsistent too, if any.
     std::vector<std::pair<double, int>> ranked;  // (consistency index, good cluster)

@@ -228,8 +228,13 @@ struct WarmEngine<Pose>::Impl {
   // The parts a cluster failing the joint test is judged again as: each run of two links or more
   // (links whose ends lie within kRunGap poses of another's ends), in the order of its first
   // link, and the lone links together (on their own, lone wrong links a few poses long are hard to
-  // tell from true ones).
+  // tell from true ones; when they fail together, JointTestAtScale lets go of those that would
+  // fail alone and judges the rest again).
   std::vector<std::vector<int>> Runs(const std::vector<int>& links) const;
+  // Whether links a and b belong to one run: their ends lie within kRunGap poses of each other's.
+  bool Near(int a, int b) const;
+  // Whether no two of `links` belong to one run.
+  bool AllLone(const std::vector<int>& links) const;
 
   // Cluster q, inconsistent with the good set as a whole, judged again as its runs: the largest
   // stays q, each other becomes a cluster of its own; each is joint-tested on its own, largest
@@ -281,8 +286,9 @@ struct WarmEngine<Pose>::Impl {
   // its link test at the current optimum (d^2 at least its cluster's link threshold,
   // OwnLinkThreshold), and each run of a good cluster whose odometry bends (BendingRuns). The one
   // whose removal statistic over its threshold is largest, if kScreenMargin or more (the screen
-  // would refuse it now), leaves its cluster and the good set and is judged again on its own
-  // (Rejudge); then again, at most kMaxOutvotedPerStep times a step. A wrong link or group that
+  // would refuse it now), leaves its cluster and the good set; the links refused since it was
+  // accepted are judged again without it (Recover), then it is judged again on its own (Rejudge);
+  // then again, at most kMaxOutvotedPerStep times a step. A wrong link or group that
   // only odometry checked when it was accepted fits by bending that odometry; clusters accepted
   // later pin the bend, and its residuals or the odometry's grow. True links whose matches share
   // their error strain too, but the rest of the good set barely disagrees with them (Intel's 74 ->

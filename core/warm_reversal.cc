@@ -83,8 +83,11 @@ void WarmEngine<Pose>::Impl::ReverseOutvoted(StepResult* result) {
     const int g = cluster_of[worst];
     const int part =
         groups[worst].size() == book->clusters[g].links.size() ? g : SplitOff(g, groups[worst]);
+    int since = book->step;  // the earliest acceptance of its links
+    for (int e : book->clusters[part].links) since = std::min(since, book->decisions[e].step);
     book->clusters[part].in_good = false;
     good.Rebuild(GoodLoops(), AlignmentCap());
+    Recover(since, {part}, ComponentsOf(part), result);
     Rejudge({part}, result);
     ++result->reversals;
   }
