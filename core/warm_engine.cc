@@ -560,12 +560,14 @@ void WarmEngine<Pose>::Impl::JointTestAtScale(int q, StepResult* result) {
           book->Set(links[k], LoopState::kRejectedJointTest, statistic[k], alone, changed);
         }
       }
-      if (!kept.empty() && kept.size() < links.size()) {
+      if (kept.empty()) break;
+      if (kept.size() < links.size()) {
         links = kept;
         continue;
       }
-      if (kept.empty()) break;
-      good.Try(links, AlignmentCap(), MaxIncrease(links));  // the trial again, for the suspects
+      // None leaves: the same trial again (deterministic), for the suspects below.
+      const bool reopened = good.Try(links, AlignmentCap(), MaxIncrease(links)).ok;
+      IRRR_CHECK(reopened);
     }
     // With the good clusters that are inconsistent too, if any.
     std::vector<std::pair<double, int>> ranked;  // (consistency index, good cluster)
