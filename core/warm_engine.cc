@@ -596,23 +596,46 @@ void WarmEngine<Pose>::Impl::JointTestAtScale(int q, StepResult* result) {
 
 template <class Pose>
 std::vector<std::pair<double, int>> WarmEngine<Pose>::Impl::BendingClusters(
-    int q, const std::vector<int>& components) const {
+    int q, const std::vector<int>& components) {
   std::vector<std::pair<double, int>> ranked;
   const size_t size = book->clusters[q].links.size();
   if (size < 2) return ranked;
-  std::vector<int> smaller;
+  std::vector<int> owner;  // the good cluster each group is of
   std::vector<std::vector<int>> groups;
   for (int g = 0; g < static_cast<int>(book->clusters.size()); ++g) {
     const JudgedCluster& c = book->clusters[g];
-    if (!c.in_good || c.links.size() >= size || !Within(components, g)) continue;
-    smaller.push_back(g);
-    groups.push_back(c.links);
+    if (!c.in_good || !Within(components, g)) continue;
+    if (c.links.size() < size) {
+      owner.push_back(g);
+      groups.push_back(c.links);
+      continue;
+    }
+    // A larger cluster: its lone links (a wrong link accepted with a true revisit is a run of its
+    // own; a true revisit's runs stand out together when a true cluster meets a bend, and judged
+    // again alone early on they can fall).
+    for (int e : c.links) {
+      const bool lone =
+          std::none_of(c.links.begin(), c.links.end(), [&](int f) { return f != e && Near(e, f); });
+      if (!lone) continue;
+      owner.push_back(g);
+      groups.push_back({e});
+    }
   }
-  if (smaller.empty()) return ranked;
+  if (groups.empty()) return ranked;
   const std::vector<double> removal = good.LinearizeRemovals(groups);
-  for (size_t k = 0; k < smaller.size(); ++k) {
+  for (size_t k = 0; k < groups.size(); ++k) {
     const double index = removal[k] / Threshold(d * static_cast<double>(groups[k].size()));
-    if (index >= 1.0) ranked.push_back({index, smaller[k]});
+    if (index < 1.0) continue;
+    int g = owner[k];
+    if (groups[k].size() < book->clusters[g].links.size()) {
+      // The run becomes a good cluster of its own, so that it can be challenged alone.
+      const double accepted_variance = book->clusters[g].accepted_variance;
+      g = SplitOff(g, groups[k]);
+      book->clusters[g].in_good = true;
+      book->clusters[g].in_r = true;
+      book->clusters[g].accepted_variance = accepted_variance;
+    }
+    ranked.push_back({index, g});
   }
   return ranked;
 }

@@ -258,12 +258,13 @@ struct WarmEngine<Pose>::Impl {
   void JointTestAtScale(int q, StepResult* result);
 
   // When no good cluster is inconsistent at the open trial of cluster q (of two links or more)
-  // that failed the joint test: the smaller good clusters whose removal would lower the trial's
-  // chi2 by more than their threshold (LinearizeRemovals), with that ratio as their index. A
-  // wrong group accepted while only odometry related its ends fits its links and bends the
-  // odometry between them: the error shows there, not in its own residuals.
-  std::vector<std::pair<double, int>> BendingClusters(int q,
-                                                      const std::vector<int>& components) const;
+  // that failed the joint test: the smaller good clusters, and the lone links (near no other of
+  // their cluster, Near) of the larger ones, whose removal would lower the trial's chi2 by more
+  // than their threshold (LinearizeRemovals), with that ratio as their index; such a link leaves
+  // its cluster for a good cluster of its own (SplitOff). A wrong group accepted while only
+  // odometry related its ends, or a wrong link accepted with a true revisit, fits its links and
+  // bends the odometry between them: the error shows there, not in its own residuals.
+  std::vector<std::pair<double, int>> BendingClusters(int q, const std::vector<int>& components);
 
   // Links `links` of cluster q leave it for a new closed cluster between the same sessions
   // (returned), their decisions with them.
