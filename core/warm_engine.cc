@@ -610,9 +610,9 @@ std::vector<std::pair<double, int>> WarmEngine<Pose>::Impl::BendingClusters(
       groups.push_back(c.links);
       continue;
     }
-    // A larger cluster: its lone links (a wrong link accepted with a true revisit is a run of its
-    // own; a true revisit's runs stand out together when a true cluster meets a bend, and judged
-    // again alone early on they can fall).
+    // A larger cluster: its lone links, near no other of its links (a wrong link accepted with a
+    // true revisit is one). Not its runs of two or more: a true run near a bend stands out too,
+    // and challenged alone early on it can fall (Manhattan + 1000 local-grouped, seed 11).
     for (int e : c.links) {
       const bool lone =
           std::none_of(c.links.begin(), c.links.end(), [&](int f) { return f != e && Near(e, f); });
@@ -628,7 +628,7 @@ std::vector<std::pair<double, int>> WarmEngine<Pose>::Impl::BendingClusters(
     if (index < 1.0) continue;
     int g = owner[k];
     if (groups[k].size() < book->clusters[g].links.size()) {
-      // The run becomes a good cluster of its own, so that it can be challenged alone.
+      // The link becomes a good cluster of its own, so that it can be challenged alone.
       const double accepted_variance = book->clusters[g].accepted_variance;
       g = SplitOff(g, groups[k]);
       book->clusters[g].in_good = true;
