@@ -414,13 +414,13 @@ bool WarmEngine<Pose>::Impl::Near(int a, int b) const {
 }
 
 template <class Pose>
+bool WarmEngine<Pose>::Impl::Lone(int e, const std::vector<int>& links) const {
+  return std::none_of(links.begin(), links.end(), [&](int f) { return f != e && Near(e, f); });
+}
+
+template <class Pose>
 bool WarmEngine<Pose>::Impl::AllLone(const std::vector<int>& links) const {
-  for (size_t a = 0; a < links.size(); ++a) {
-    for (size_t b = 0; b < a; ++b) {
-      if (Near(links[a], links[b])) return false;
-    }
-  }
-  return true;
+  return std::all_of(links.begin(), links.end(), [&](int e) { return Lone(e, links); });
 }
 
 template <class Pose>
@@ -614,9 +614,7 @@ std::vector<std::pair<double, int>> WarmEngine<Pose>::Impl::BendingClusters(
     // true revisit is one). Not its runs of two or more: a true run near a bend stands out too,
     // and challenged alone early on it can fall (Manhattan + 1000 local-grouped, seed 11).
     for (int e : c.links) {
-      const bool lone =
-          std::none_of(c.links.begin(), c.links.end(), [&](int f) { return f != e && Near(e, f); });
-      if (!lone) continue;
+      if (!Lone(e, c.links)) continue;
       owner.push_back(g);
       groups.push_back({e});
     }

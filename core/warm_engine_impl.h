@@ -233,6 +233,8 @@ struct WarmEngine<Pose>::Impl {
   std::vector<std::vector<int>> Runs(const std::vector<int>& links) const;
   // Whether links a and b belong to one run: their ends lie within kRunGap poses of each other's.
   bool Near(int a, int b) const;
+  // Whether link e belongs to no run of `links` (near none of the others).
+  bool Lone(int e, const std::vector<int>& links) const;
   // Whether no two of `links` belong to one run.
   bool AllLone(const std::vector<int>& links) const;
 
@@ -299,6 +301,9 @@ struct WarmEngine<Pose>::Impl {
   // holds an odometry edge that fails the link test at the current optimum, with their clusters.
   std::vector<std::pair<int, std::vector<int>>> BendingRuns() const;
   void NoteRefusals(const std::vector<int>& changed);
+  // The earliest step at which a link of `clusters` last changed state (their acceptance, for
+  // good clusters), at most the current step.
+  int EarliestStep(const std::vector<int>& clusters) const;
 
   // Recovering: clusters that have left the good set get back every link they held when they
   // closed and are judged again against the good set as it is now; their links that were

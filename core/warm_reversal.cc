@@ -83,8 +83,7 @@ void WarmEngine<Pose>::Impl::ReverseOutvoted(StepResult* result) {
     const int g = cluster_of[worst];
     const int part =
         groups[worst].size() == book->clusters[g].links.size() ? g : SplitOff(g, groups[worst]);
-    int since = book->step;  // the earliest acceptance of its links
-    for (int e : book->clusters[part].links) since = std::min(since, book->decisions[e].step);
+    const int since = EarliestStep({part});
     book->clusters[part].in_good = false;
     good.Rebuild(GoodLoops(), AlignmentCap());
     Recover(since, {part}, ComponentsOf(part), result);
@@ -155,6 +154,15 @@ void WarmEngine<Pose>::Impl::RejudgeRefused(StepResult* result) {
     refused.push_back(q);
   }
   if (!refused.empty()) Rejudge(refused, result);
+}
+
+template <class Pose>
+int WarmEngine<Pose>::Impl::EarliestStep(const std::vector<int>& clusters) const {
+  int earliest = book->step;
+  for (int g : clusters) {
+    for (int e : book->clusters[g].links) earliest = std::min(earliest, book->decisions[e].step);
+  }
+  return earliest;
 }
 
 template <class Pose>
@@ -294,10 +302,7 @@ bool WarmEngine<Pose>::Impl::Replace(const std::vector<int>& suspects,
   for (int g : suspects) {
     if (std::find(taken.begin(), taken.end(), g) == taken.end()) reversed.push_back(g);
   }
-  int since = book->step;  // the earliest acceptance of a reversed cluster's link
-  for (int g : reversed) {
-    for (int e : book->clusters[g].links) since = std::min(since, book->decisions[e].step);
-  }
+  const int since = EarliestStep(reversed);  // the earliest acceptance of a reversed cluster's link
   for (int g : reversed) book->clusters[g].in_good = false;
   Recover(since, reversed, components, result);
   Rejudge(reversed, result);
@@ -364,6 +369,7 @@ void WarmEngine<Pose>::Impl::Recover(int since,
   template std::vector<std::pair<int, std::vector<int>>> WarmEngine<Pose>::Impl::BendingRuns() \
       const;                                                                                   \
   template void WarmEngine<Pose>::Impl::NoteRefusals(const std::vector<int>&);                 \
+  template int WarmEngine<Pose>::Impl::EarliestStep(const std::vector<int>&) const;            \
   template void WarmEngine<Pose>::Impl::Rejudge(std::vector<int>, StepResult*);                \
   template void WarmEngine<Pose>::Impl::Challenge(                                             \
       const std::vector<int>&, const std::vector<int>&, StepResult*);                          \
