@@ -327,9 +327,9 @@ struct WarmEngine<Pose>::Impl {
                const std::vector<int>& components,
                StepResult* result);
 
-  // Recovering: links refused by the good set's tests since step `since`, while the reversed
-  // clusters bent its estimate, are judged again without them: those of each cluster (but the
-  // reversed, judged again whole) as a cluster of their own.
+  // Recovering: links refused by the good set's tests, or reversed, since step `since`, while the
+  // reversed clusters bent its estimate or outvoted them, are judged again without them: those of
+  // each cluster (but the reversed, judged again whole) as a cluster of their own.
   void Recover(int since,
                const std::vector<int>& reversed,
                const std::vector<int>& components,

@@ -340,7 +340,8 @@ void WarmEngine<Pose>::Impl::Recover(int since,
     const LoopDecision& decision = book->decisions[e];
     if (decision.cluster < 0 || decision.step < since ||
         (decision.state != LoopState::kRejectedJointTest &&
-         decision.state != LoopState::kRejectedLinkTest) ||
+         decision.state != LoopState::kRejectedLinkTest &&
+         decision.state != LoopState::kReversed) ||
         std::find(reversed.begin(), reversed.end(), decision.cluster) != reversed.end() ||
         !Within(components, decision.cluster)) {
       continue;
