@@ -288,9 +288,11 @@ struct WarmEngine<Pose>::Impl {
   // Reversing what later evidence outvotes. The candidates: each good link that no longer passes
   // its link test at the current optimum (d^2 at least its cluster's link threshold,
   // OwnLinkThreshold), and each run of a good cluster whose odometry bends (BendingRuns). The one
-  // whose removal statistic over its threshold is largest, if kScreenMargin or more (the screen
-  // would refuse it now), leaves its cluster and the good set; the links refused since it was
-  // accepted are judged again without it (Recover), then it is judged again on its own (Rejudge);
+  // whose removal statistic over its threshold is largest, if at least its margin (a link:
+  // kScreenMargin, the screen would refuse it now; a run over failing odometry, which is evidence
+  // already: kBendingRunMargin), leaves its cluster and the good set; the links refused or
+  // reversed since it was accepted are judged again without it (Recover), then it is judged again
+  // on its own (Rejudge);
   // then again, at most kMaxOutvotedPerStep times a step. A wrong link or group that
   // only odometry checked when it was accepted fits by bending that odometry; clusters accepted
   // later pin the bend, and its residuals or the odometry's grow. True links whose matches share

@@ -21,6 +21,9 @@ constexpr size_t kMaxChallengers = 8;
 // Good links or runs that ReverseOutvoted reverses in one step at most (each costs a rebuild of
 // the good set).
 constexpr int kMaxOutvotedPerStep = 8;
+// A good run whose span holds odometry that fails its link test (BendingRuns) is reversed when its
+// removal statistic is this many times its threshold.
+constexpr double kBendingRunMargin = 2.0;
 
 bool IsRefusal(LoopState state) {
   return state == LoopState::kRejectedLinkTest || state == LoopState::kRejectedClusterTest ||
@@ -52,6 +55,7 @@ void WarmEngine<Pose>::Impl::ReverseOutvoted(StepResult* result) {
     std::vector<std::vector<int>> groups;
     std::vector<int> cluster_of;
     std::vector<double> threshold_of;
+    std::vector<double> margin_of;
     for (int g = 0; g < static_cast<int>(book->clusters.size()); ++g) {
       const JudgedCluster& c = book->clusters[g];
       if (!c.in_good) continue;
@@ -61,20 +65,22 @@ void WarmEngine<Pose>::Impl::ReverseOutvoted(StepResult* result) {
         groups.push_back({e});
         cluster_of.push_back(g);
         threshold_of.push_back(threshold);
+        margin_of.push_back(kScreenMargin);
       }
     }
     for (const auto& [g, run] : BendingRuns()) {
       groups.push_back(run);
       cluster_of.push_back(g);
       threshold_of.push_back(Threshold(d * static_cast<double>(run.size())));
+      margin_of.push_back(kBendingRunMargin);
     }
     if (groups.empty()) return;
     const std::vector<double> removal = good.LinearizeRemovals(groups);
     int worst = -1;
-    double worst_ratio = kScreenMargin;
+    double worst_ratio = 0.0;
     for (size_t k = 0; k < groups.size(); ++k) {
       const double ratio = removal[k] / threshold_of[k];
-      if (ratio >= worst_ratio) {
+      if (ratio >= margin_of[k] && ratio >= worst_ratio) {
         worst_ratio = ratio;
         worst = static_cast<int>(k);
       }
