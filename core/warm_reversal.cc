@@ -51,11 +51,14 @@ void WarmEngine<Pose>::Impl::Revalidate(StepResult* result) {
 template <class Pose>
 void WarmEngine<Pose>::Impl::ReverseOutvoted(StepResult* result) {
   for (int round = 0; round < kMaxOutvotedPerStep; ++round) {
-    // The candidates: groups of good links, each with its cluster and threshold.
+    // The candidates: groups of good links, each with its cluster, threshold and margin.
+    struct Candidate {
+      int cluster;
+      double threshold;
+      double margin;
+    };
     std::vector<std::vector<int>> groups;
-    std::vector<int> cluster_of;
-    std::vector<double> threshold_of;
-    std::vector<double> margin_of;
+    std::vector<Candidate> candidates;
     for (int g = 0; g < static_cast<int>(book->clusters.size()); ++g) {
       const JudgedCluster& c = book->clusters[g];
       if (!c.in_good) continue;
@@ -63,30 +66,26 @@ void WarmEngine<Pose>::Impl::ReverseOutvoted(StepResult* result) {
       for (int e : c.links) {
         if (good.EdgeChi2(e) < threshold) continue;
         groups.push_back({e});
-        cluster_of.push_back(g);
-        threshold_of.push_back(threshold);
-        margin_of.push_back(kScreenMargin);
+        candidates.push_back({g, threshold, kScreenMargin});
       }
     }
     for (const auto& [g, run] : BendingRuns()) {
       groups.push_back(run);
-      cluster_of.push_back(g);
-      threshold_of.push_back(Threshold(d * static_cast<double>(run.size())));
-      margin_of.push_back(kBendingRunMargin);
+      candidates.push_back({g, Threshold(d * static_cast<double>(run.size())), kBendingRunMargin});
     }
     if (groups.empty()) return;
     const std::vector<double> removal = good.LinearizeRemovals(groups);
     int worst = -1;
     double worst_ratio = 0.0;
     for (size_t k = 0; k < groups.size(); ++k) {
-      const double ratio = removal[k] / threshold_of[k];
-      if (ratio >= margin_of[k] && ratio >= worst_ratio) {
+      const double ratio = removal[k] / candidates[k].threshold;
+      if (ratio >= candidates[k].margin && ratio >= worst_ratio) {
         worst_ratio = ratio;
         worst = static_cast<int>(k);
       }
     }
     if (worst < 0) return;
-    const int g = cluster_of[worst];
+    const int g = candidates[worst].cluster;
     const int part =
         groups[worst].size() == book->clusters[g].links.size() ? g : SplitOff(g, groups[worst]);
     const int since = EarliestStep({part});
