@@ -207,6 +207,13 @@ void CheckNoneWrongRecallAtLeast99(const CorruptedRun& run) {
   CHECK(run.pending_in_clusters == 0);
 }
 
+// No wrong loop accepted and every true loop accepted.
+void CheckNoneWrongEveryTrue(const CorruptedRun& run) {
+  INFO(run.accepted_true << " of " << run.true_loops << " true loops accepted");
+  CHECK(run.accepted_wrong == 0);
+  CHECK(run.accepted_true == run.true_loops);
+}
+
 // The reversals over a run's steps.
 int Reversals(const std::vector<StepResult>& steps) {
   int reversals = 0;
@@ -267,8 +274,7 @@ TEST_CASE("Manhattan + 1000 local-grouped in groups of 10, seed 2: a bending wro
           "[datasets][irrr]") {
   const CorruptedRun run = RunCorrupted(
       "manhattan/vertigo/Olson/manhattanOlson3500.g2o", OutlierMode::kLocalGrouped, 1000, 2, 10);
-  CHECK(run.accepted_wrong == 0);
-  CHECK(run.accepted_true == run.true_loops);
+  CheckNoneWrongEveryTrue(run);
   CHECK(Reversals(run.steps) >= 1);
 }
 
@@ -282,8 +288,7 @@ TEST_CASE("Manhattan + 300 local, seed 1: lone links that fail alone still name 
           "[datasets][irrr]") {
   const CorruptedRun run =
       RunCorrupted("manhattan/vertigo/Olson/manhattanOlson3500.g2o", OutlierMode::kLocal, 300, 1);
-  CHECK(run.accepted_wrong == 0);
-  CHECK(run.accepted_true == run.true_loops);
+  CheckNoneWrongEveryTrue(run);
   CHECK(Reversals(run.steps) >= 1);
 }
 
@@ -302,8 +307,7 @@ TEST_CASE("Manhattan + 1000, random-grouped seed 10 and local seed 9: every true
     INFO(OutlierModeName(mode) << ", seed " << seed);
     const CorruptedRun run =
         RunCorrupted("manhattan/vertigo/Olson/manhattanOlson3500.g2o", mode, 1000, seed);
-    CHECK(run.accepted_wrong == 0);
-    CHECK(run.accepted_true == run.true_loops);
+    CheckNoneWrongEveryTrue(run);
   }
 }
 
@@ -318,8 +322,7 @@ TEST_CASE(
     "[datasets][irrr]") {
   const CorruptedRun run = RunCorrupted(
       "manhattan/vertigo/Olson/manhattanOlson3500.g2o", OutlierMode::kRandomGrouped, 1000, 1, 10);
-  CHECK(run.accepted_wrong == 0);
-  CHECK(run.accepted_true == run.true_loops);
+  CheckNoneWrongEveryTrue(run);
   CHECK(Reversals(run.steps) >= 2);
 }
 
@@ -385,8 +388,7 @@ TEST_CASE("Ring + 100 random, seed 7: a wrong link that bends the odometry leave
           "[datasets][irrr]") {
   const CorruptedRun run =
       RunCorrupted("ring/vertigo/originalDataset/ring.g2o", OutlierMode::kRandom, 100, 7);
-  CHECK(run.accepted_wrong == 0);
-  CHECK(run.accepted_true == run.true_loops);
+  CheckNoneWrongEveryTrue(run);
   CHECK(run.pending_in_clusters == 0);
   CHECK(LargestFactorDecidedAt(run.steps) < 0.5);
 }
