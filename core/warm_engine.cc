@@ -584,7 +584,8 @@ void WarmEngine<Pose>::Impl::JointTestAtScale(int q, StepResult* result) {
     for (const auto& [unused, g] : ranked) suspects.push_back(g);
     good.Rollback();
     const double threshold = trial.dof > 0.0 ? Threshold(trial.dof) : 0.0;
-    for (int e : links) {
+    // Not `links`: BendingClusters may split clusters off, and the book's clusters move.
+    for (int e : book->clusters[q].links) {
       book->Set(e, LoopState::kRejectedJointTest, trial.increase, threshold, changed);
     }
     book->clusters[q].in_reject = true;
