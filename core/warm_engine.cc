@@ -578,13 +578,19 @@ void WarmEngine<Pose>::Impl::JointTestAtScale(int q, StepResult* result) {
       const double g_index = ConsistencyIndex(g, &chi2);
       if (g_index >= 1.0) ranked.push_back({g_index, g});
     }
-    if (ranked.empty()) ranked = BendingClusters(q, components);
+    if (ranked.empty()) {
+      for (const Bending& b : BendingClusters(q, components)) {
+        // A lone link of a larger cluster leaves it, so that it can be challenged alone.
+        const bool part = b.links.size() < book->clusters[b.cluster].links.size();
+        ranked.push_back({b.index, part ? SplitOffGood(b.cluster, b.links) : b.cluster});
+      }
+    }
     std::sort(ranked.rbegin(), ranked.rend());
     std::vector<int> suspects;  // most inconsistent first
     for (const auto& [unused, g] : ranked) suspects.push_back(g);
     good.Rollback();
     const double threshold = trial.dof > 0.0 ? Threshold(trial.dof) : 0.0;
-    // Not `links`: BendingClusters may split clusters off, and the book's clusters move.
+    // Not `links`: the lone links split off above added clusters, and the book's clusters moved.
     for (int e : book->clusters[q].links) {
       book->Set(e, LoopState::kRejectedJointTest, trial.increase, threshold, changed);
     }
@@ -597,9 +603,9 @@ void WarmEngine<Pose>::Impl::JointTestAtScale(int q, StepResult* result) {
 }
 
 template <class Pose>
-std::vector<std::pair<double, int>> WarmEngine<Pose>::Impl::BendingClusters(
-    int q, const std::vector<int>& components) {
-  std::vector<std::pair<double, int>> ranked;
+std::vector<typename WarmEngine<Pose>::Impl::Bending> WarmEngine<Pose>::Impl::BendingClusters(
+    int q, const std::vector<int>& components) const {
+  std::vector<Bending> ranked;
   const size_t size = book->clusters[q].links.size();
   if (size < 2) return ranked;
   std::vector<int> owner;  // the good cluster each group is of
@@ -626,18 +632,19 @@ std::vector<std::pair<double, int>> WarmEngine<Pose>::Impl::BendingClusters(
   for (size_t k = 0; k < groups.size(); ++k) {
     const double index = removal[k] / Threshold(d * static_cast<double>(groups[k].size()));
     if (index < 1.0) continue;
-    int g = owner[k];
-    if (groups[k].size() < book->clusters[g].links.size()) {
-      // The link becomes a good cluster of its own, so that it can be challenged alone.
-      const double accepted_variance = book->clusters[g].accepted_variance;
-      g = SplitOff(g, groups[k]);
-      book->clusters[g].in_good = true;
-      book->clusters[g].in_r = true;
-      book->clusters[g].accepted_variance = accepted_variance;
-    }
-    ranked.push_back({index, g});
+    ranked.push_back({index, owner[k], groups[k]});
   }
   return ranked;
+}
+
+template <class Pose>
+int WarmEngine<Pose>::Impl::SplitOffGood(int g, const std::vector<int>& links) {
+  const double accepted_variance = book->clusters[g].accepted_variance;
+  const int part = SplitOff(g, links);
+  book->clusters[part].in_good = true;
+  book->clusters[part].in_r = true;
+  book->clusters[part].accepted_variance = accepted_variance;
+  return part;
 }
 
 template <class Pose>

@@ -262,11 +262,19 @@ struct WarmEngine<Pose>::Impl {
   // When no good cluster is inconsistent at the open trial of cluster q (of two links or more)
   // that failed the joint test: the smaller good clusters, and the lone links (near no other of
   // their cluster, Near) of the larger ones, whose removal would lower the trial's chi2 by more
-  // than their threshold (LinearizeRemovals), with that ratio as their index; such a link leaves
-  // its cluster for a good cluster of its own (SplitOff). A wrong group accepted while only
-  // odometry related its ends, or a wrong link accepted with a true revisit, fits its links and
-  // bends the odometry between them: the error shows there, not in its own residuals.
-  std::vector<std::pair<double, int>> BendingClusters(int q, const std::vector<int>& components);
+  // than their threshold (LinearizeRemovals), with that ratio as their index; the caller splits
+  // such a link off into a good cluster of its own (SplitOffGood) so that it can be challenged
+  // alone. A wrong group accepted while only odometry related its ends, or a wrong link accepted
+  // with a true revisit, fits its links and bends the odometry between them: the error shows
+  // there, not in its own residuals.
+  struct Bending {
+    double index;
+    int cluster;
+    std::vector<int> links;  // the whole cluster, or one lone link of it
+  };
+  std::vector<Bending> BendingClusters(int q, const std::vector<int>& components) const;
+  // SplitOff for a good cluster: the part stays good, accepted at the same factor.
+  int SplitOffGood(int g, const std::vector<int>& links);
 
   // Links `links` of cluster q leave it for a new closed cluster between the same sessions
   // (returned), their decisions with them.
