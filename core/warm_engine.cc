@@ -550,6 +550,7 @@ void WarmEngine<Pose>::Impl::JointTestAtScale(int q, StepResult* result) {
     // raise the group's own factor) leave, and the rest is judged again. When all leave, they
     // still name suspects below: true lone links that all fail may have been bent by a wrong
     // link accepted before (Manhattan + 300 local, seed 1: 1584 -> 1575).
+    bool refused_alone = false;  // every link failed on its own too, and keeps that statistic
     if (links.size() >= 2 && AllLone(links)) {
       good.Rollback();
       const std::vector<double> statistic = LinkStatistics(links);
@@ -566,6 +567,7 @@ void WarmEngine<Pose>::Impl::JointTestAtScale(int q, StepResult* result) {
         links = kept;
         continue;
       }
+      refused_alone = kept.empty();
       // None leaves, or all do: the same trial again (deterministic), for the suspects below.
       const bool reopened = good.Try(links, AlignmentCap(), MaxIncrease(links)).ok;
       IRRR_CHECK(reopened);
@@ -591,8 +593,12 @@ void WarmEngine<Pose>::Impl::JointTestAtScale(int q, StepResult* result) {
     good.Rollback();
     const double threshold = trial.dof > 0.0 ? Threshold(trial.dof) : 0.0;
     // Not `links`: the lone links split off above added clusters, and the book's clusters moved.
-    for (int e : book->clusters[q].links) {
-      book->Set(e, LoopState::kRejectedJointTest, trial.increase, threshold, changed);
+    // Links refused alone keep their own statistics, which RejudgeRefused reads when the factor
+    // rises (the group's increase is not any one link's).
+    if (!refused_alone) {
+      for (int e : book->clusters[q].links) {
+        book->Set(e, LoopState::kRejectedJointTest, trial.increase, threshold, changed);
+      }
     }
     book->clusters[q].in_reject = true;
     for (int g : suspects) book->clusters[g].opponents.push_back(q);

@@ -484,6 +484,56 @@ TEST_CASE(
   CHECK(worst < 1e-3);
 }
 
+TEST_CASE("Lone links that each fail alone keep the statistic each was refused at", "[irrr]") {
+  // Two laps of a circle, noiseless, with stiff odometry. A true cluster of 10 loops closes the
+  // second lap on the first; then one cluster of three lone loops (8 poses apart: no two in a
+  // run), each claiming a relative pose off by its own amount (0.1 m apart: they agree with each
+  // other, so the cluster passes Algorithm 1). Together they fail; each would fail alone too, so
+  // each is refused at its own statistic against the link threshold (which RejudgeRefused reads
+  // when the variance factor rises), not at the three's chi2 increase.
+  PoseGraph<Pose2> graph;
+  constexpr int kLap = 200;
+  constexpr int kPoses = 2 * kLap + 100;
+  const Eigen::Matrix3d odometry_information = Eigen::Vector3d(1e4, 1e4, 1e6).asDiagonal();
+  const Eigen::Matrix3d loop_information = Eigen::Vector3d(100.0, 100.0, 1e4).asDiagonal();
+  const std::vector<Pose2> truth = DriveCircle(kPoses, kLap, odometry_information, &graph);
+  auto add_loop = [&](int from, const Pose2& error) {
+    int edge = -1;
+    REQUIRE(graph
+                .AddLoop(from,
+                         from - kLap,
+                         truth[from].Inverse() * truth[from - kLap] * error,
+                         loop_information,
+                         &edge)
+                .ok());
+    return edge;
+  };
+  for (int from = kLap + 20; from < kLap + 30; ++from) add_loop(from, Pose2());
+  const std::vector<double> errors_m = {0.6, 0.7, 0.8};
+  std::vector<int> wrong;
+  for (size_t k = 0; k < errors_m.size(); ++k) {
+    wrong.push_back(add_loop(kLap + 40 + 8 * static_cast<int>(k), Pose2(0.0, errors_m[k], 0.0)));
+  }
+
+  IrrrOptions options;
+  options.variance_factor = 1.0;  // the information is right
+  options.cluster_gap = 10.0;     // two clusters
+  std::vector<StepResult> steps;
+  const std::vector<LoopDecision> decisions =
+      RunIncrementalIrrr<Pose2>(graph, options, nullptr, &steps);
+  REQUIRE(steps.size() == 2);
+  const double link_threshold = ChiSquareQuantile(0.999, 3.0);
+  for (size_t k = 0; k < wrong.size(); ++k) {
+    const LoopDecision& decision = decisions[wrong[k]];
+    CHECK(decision.state == LoopState::kRejectedJointTest);
+    CHECK(decision.threshold == Approx(link_threshold));
+    CHECK(decision.chi2 > decision.threshold);
+    // Each its own: the statistic alone grows with the link's own error (the three's chi2
+    // increase would be one number for all).
+    if (k > 0) CHECK(decision.chi2 > decisions[wrong[k - 1]].chi2);
+  }
+}
+
 // Loops that share their error along each revisit, as a place recognizer's matches do: each run
 // of loops (their ends within 5 poses of the previous loop's) gets one offset on top of the
 // measurement noise. A cluster's own redundancy sees only the noise; the good set's also sees
