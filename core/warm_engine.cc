@@ -537,11 +537,14 @@ void WarmEngine<Pose>::Impl::JointTestAtScale(int q, StepResult* result) {
     }
     // Inconsistent as a whole. A cluster of several runs (Runs: a few wrong links among
     // a place's true ones form runs of their own) is judged again as its runs, each a cluster
-    // of its own, so that a wrong run does not take the true ones down with it.
+    // of its own, so that a wrong run does not take the true ones down with it; the runs that
+    // fail then challenge together what bent them (ChallengeAsWhole).
     const std::vector<std::vector<int>> runs = Runs(links);
     if (runs.size() >= 2) {
       good.Rollback();
+      const std::vector<int> whole = links;  // JudgeRuns splits the cluster
       JudgeRuns(q, runs, result);
+      ChallengeAsWhole(whole, components, result);
       return;
     }
     // Lone links judged together (no two near each other) that fail as a whole: those that would

@@ -282,6 +282,17 @@ struct WarmEngine<Pose>::Impl {
 
   // ---- Algorithm 2's reversal and recovery (core/warm_reversal.cc) -------------------------
 
+  // After a cluster of links `whole` was judged as its runs (JudgeRuns): when two runs of two
+  // links or more failed, they are tried together, and every run of a good cluster (and each
+  // lone link) whose removal statistic at that trial is kBendingRunMargin times its threshold
+  // or more is split off and challenged by them. One run alone can be too weak to show a wrong
+  // run that bent the map (Manhattan + 2000 local-grouped, seed 2: the loop closing 2780 poses,
+  // refused in runs of 2-3, against a wrong run of 2 accepted inside a revisit of short loops).
+  // A part that stays good goes back to its cluster.
+  void ChallengeAsWhole(const std::vector<int>& whole,
+                        const std::vector<int>& components,
+                        StepResult* result);
+
   // Reversing: good clusters accepted while the clusters' factor was more than kRevalidateRatio
   // times the current one (early, on little evidence of the noise) leave the good set together
   // and are judged again at the current factor (Rejudge).

@@ -22,7 +22,9 @@ constexpr size_t kMaxChallengers = 8;
 // the good set).
 constexpr int kMaxOutvotedPerStep = 8;
 // A good run whose span holds odometry that fails its link test (BendingRuns) is reversed when its
-// removal statistic is this many times its threshold.
+// removal statistic is this many times its threshold; a good run is a suspect of runs that failed
+// one by one (ChallengeAsWhole) at this many times too (a true run near a bend stands out as well:
+// Manhattan + 1000 local-grouped seed 11's 128 -> 189 at step 1).
 constexpr double kBendingRunMargin = 2.0;
 
 bool IsRefusal(LoopState state) {
@@ -243,6 +245,80 @@ void WarmEngine<Pose>::Impl::Challenge(const std::vector<int>& suspects,
 }
 
 template <class Pose>
+void WarmEngine<Pose>::Impl::ChallengeAsWhole(const std::vector<int>& whole,
+                                              const std::vector<int>& components,
+                                              StepResult* result) {
+  if (rejudging > 0) return;
+  std::vector<int> failed;   // the runs of two links or more that failed
+  std::vector<int> refused;  // their links
+  for (int e : whole) {
+    const int q = book->decisions[e].cluster;
+    const JudgedCluster& c = book->clusters[q];
+    if (!c.in_reject || c.links.size() < 2 ||
+        std::find(failed.begin(), failed.end(), q) != failed.end()) {
+      continue;
+    }
+    failed.push_back(q);
+    refused.insert(refused.end(), c.links.begin(), c.links.end());
+  }
+  if (failed.size() < 2) return;  // one run has named its suspects already
+  if (!good.Try(refused, AlignmentCap(), MaxIncrease(refused)).ok) return;
+  // Every run of every good cluster, and each of their lone links on its own.
+  std::vector<int> owner;
+  std::vector<std::vector<int>> groups;
+  for (int g = 0; g < static_cast<int>(book->clusters.size()); ++g) {
+    const JudgedCluster& c = book->clusters[g];
+    if (!c.in_good || !Within(components, g)) continue;
+    for (std::vector<int>& run : Runs(c.links)) {
+      if (run.size() >= 2 && Lone(run.front(), run)) {
+        for (int e : run) {
+          owner.push_back(g);
+          groups.push_back({e});
+        }
+      } else {
+        owner.push_back(g);
+        groups.push_back(std::move(run));
+      }
+    }
+  }
+  const std::vector<double> removal = good.LinearizeRemovals(groups);
+  good.Rollback();
+  std::vector<std::pair<double, size_t>> ranked;  // (removal over threshold, group)
+  for (size_t k = 0; k < groups.size(); ++k) {
+    const double index = removal[k] / Threshold(d * static_cast<double>(groups[k].size()));
+    if (index >= kBendingRunMargin) ranked.push_back({index, k});
+  }
+  if (ranked.empty()) return;
+  std::sort(ranked.rbegin(), ranked.rend());
+  std::vector<std::pair<int, int>> parts;  // (part split off, the cluster it left)
+  std::vector<int> suspects;               // most inconsistent first
+  for (const auto& [unused, k] : ranked) {
+    const int g = owner[k];
+    if (groups[k].size() < book->clusters[g].links.size()) {
+      parts.push_back({SplitOffGood(g, groups[k]), g});
+      suspects.push_back(parts.back().first);
+    } else {
+      suspects.push_back(g);
+    }
+  }
+  for (int g : suspects) {
+    std::vector<int>& opponents = book->clusters[g].opponents;
+    opponents.insert(opponents.end(), failed.begin(), failed.end());
+  }
+  Challenge(suspects, components, result);
+  // A part that stays good goes back to its cluster.
+  for (const auto& [part, g] : parts) {
+    JudgedCluster& p = book->clusters[part];
+    if (!p.in_good || !book->clusters[g].in_good) continue;
+    for (int e : p.links) book->decisions[e].cluster = g;
+    std::vector<int>& links = book->clusters[g].links;
+    links.insert(links.end(), p.links.begin(), p.links.end());
+    p.links.clear();
+    p.in_good = false;
+  }
+}
+
+template <class Pose>
 bool WarmEngine<Pose>::Impl::Replace(const std::vector<int>& suspects,
                                      const std::vector<int>& challengers,
                                      const std::vector<int>& components,
@@ -377,6 +453,8 @@ void WarmEngine<Pose>::Impl::Recover(int since,
   template void WarmEngine<Pose>::Impl::NoteRefusals(const std::vector<int>&);                 \
   template int WarmEngine<Pose>::Impl::EarliestStep(const std::vector<int>&) const;            \
   template void WarmEngine<Pose>::Impl::Rejudge(std::vector<int>, StepResult*);                \
+  template void WarmEngine<Pose>::Impl::ChallengeAsWhole(                                      \
+      const std::vector<int>&, const std::vector<int>&, StepResult*);                          \
   template void WarmEngine<Pose>::Impl::Challenge(                                             \
       const std::vector<int>&, const std::vector<int>&, StepResult*);                          \
   template bool WarmEngine<Pose>::Impl::Replace(                                               \
