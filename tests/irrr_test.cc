@@ -396,6 +396,26 @@ std::vector<Pose2> DriveCircle(int poses,
   return truth;
 }
 
+// `links` loops from pose `first` on of DriveCircle's `truth`, each back one lap of `lap` poses to
+// the same place, claiming the true relative pose times `error`; returns their edges.
+std::vector<int> AddLapLoops(const std::vector<Pose2>& truth,
+                             int lap,
+                             int first,
+                             int links,
+                             const Pose2& error,
+                             const Eigen::Matrix3d& information,
+                             PoseGraph<Pose2>* graph) {
+  std::vector<int> edges;
+  for (int from = first; from < first + links; ++from) {
+    const int to = from - lap;
+    int edge = -1;
+    REQUIRE(graph->AddLoop(from, to, truth[from].Inverse() * truth[to] * error, information, &edge)
+                .ok());
+    edges.push_back(edge);
+  }
+  return edges;
+}
+
 TEST_CASE("A lone loop the estimate cannot check waits; one it can check is judged", "[irrr]") {
   PoseGraph<Pose2> graph;
   constexpr int kPoses = 200;
@@ -437,17 +457,7 @@ TEST_CASE(
   const std::vector<Pose2> truth = DriveCircle(kPoses, kLap, odometry_information, &graph);
   // Loops from the second lap back to the same places on the first, `links` from pose `first`.
   auto add_loops = [&](int first, int links, const Pose2& error) {
-    std::vector<int> edges;
-    for (int from = first; from < first + links; ++from) {
-      const int to = from - kLap;
-      int edge = -1;
-      REQUIRE(
-          graph
-              .AddLoop(from, to, truth[from].Inverse() * truth[to] * error, loop_information, &edge)
-              .ok());
-      edges.push_back(edge);
-    }
-    return edges;
+    return AddLapLoops(truth, kLap, first, links, error, loop_information, &graph);
   };
   const std::vector<int> wrong = add_loops(kLap + 60, 3, Pose2(5.0, 0.0, 0.0));
   const std::vector<int> lone = add_loops(kLap + 70, 1, Pose2());
@@ -497,22 +507,13 @@ TEST_CASE("Lone links that each fail alone keep the statistic each was refused a
   const Eigen::Matrix3d odometry_information = Eigen::Vector3d(1e4, 1e4, 1e6).asDiagonal();
   const Eigen::Matrix3d loop_information = Eigen::Vector3d(100.0, 100.0, 1e4).asDiagonal();
   const std::vector<Pose2> truth = DriveCircle(kPoses, kLap, odometry_information, &graph);
-  auto add_loop = [&](int from, const Pose2& error) {
-    int edge = -1;
-    REQUIRE(graph
-                .AddLoop(from,
-                         from - kLap,
-                         truth[from].Inverse() * truth[from - kLap] * error,
-                         loop_information,
-                         &edge)
-                .ok());
-    return edge;
-  };
-  for (int from = kLap + 20; from < kLap + 30; ++from) add_loop(from, Pose2());
+  AddLapLoops(truth, kLap, kLap + 20, 10, Pose2(), loop_information, &graph);
   const std::vector<double> errors_m = {0.6, 0.7, 0.8};
   std::vector<int> wrong;
   for (size_t k = 0; k < errors_m.size(); ++k) {
-    wrong.push_back(add_loop(kLap + 40 + 8 * static_cast<int>(k), Pose2(0.0, errors_m[k], 0.0)));
+    const int from = kLap + 40 + 8 * static_cast<int>(k);
+    wrong.push_back(AddLapLoops(
+        truth, kLap, from, 1, Pose2(0.0, errors_m[k], 0.0), loop_information, &graph)[0]);
   }
 
   IrrrOptions options;
