@@ -491,34 +491,6 @@ double WarmEngine<Pose>::Impl::LowestRunVariance(int q) {
 }
 
 template <class Pose>
-std::vector<int> WarmEngine<Pose>::Impl::KeepPassingAlone(const std::vector<int>& links,
-                                                          std::vector<int>* changed) {
-  const std::vector<double> statistic = LinkStatistics(links);
-  const double alone = ThresholdsAt(variance).Of(d);
-  std::vector<int> kept;
-  for (size_t k = 0; k < links.size(); ++k) {
-    if (statistic[k] < alone) {
-      kept.push_back(links[k]);
-    } else {
-      book->Set(links[k], LoopState::kRejectedJointTest, statistic[k], alone, changed);
-    }
-  }
-  return kept;
-}
-
-template <class Pose>
-bool WarmEngine<Pose>::Impl::JudgedAsRuns(int q,
-                                          const std::vector<int>& components,
-                                          StepResult* result) {
-  const std::vector<int> whole = book->clusters[q].links;  // JudgeRuns splits the cluster
-  std::vector<std::vector<int>> runs = Runs(whole);
-  if (runs.size() < 2) return false;
-  JudgeRuns(q, std::move(runs), result);
-  ChallengeAsWhole(whole, components, result);
-  return true;
-}
-
-template <class Pose>
 void WarmEngine<Pose>::Impl::JointTestAtScale(int q, StepResult* result) {
   std::vector<int>* changed = &result->changed_loops;
   while (true) {
@@ -526,29 +498,12 @@ void WarmEngine<Pose>::Impl::JointTestAtScale(int q, StepResult* result) {
     const std::vector<int> components = ComponentsOf(q);
     const typename GoodSet<Pose>::Trial trial = good.Try(links, AlignmentCap(), MaxIncrease(links));
     if (!trial.ok) {
-      // Not settled, or past its threshold before it settled (MaxIncrease): inconsistent as a
-      // whole, with no optimum to rank suspects at. Its runs, or its lone links that pass alone,
-      // are judged again as below (Manhattan + 2000 random, seed 2: three true links of a
-      // revisit and a true lone link fell with two wrong lone links that kept the trial from
-      // settling).
-      if (JudgedAsRuns(q, components, result)) return;
-      bool refused_alone = false;
-      if (links.size() >= 2 && AllLone(links)) {
-        const std::vector<int> kept = KeepPassingAlone(links, changed);
-        if (!kept.empty() && kept.size() < links.size()) {
-          links = kept;
-          continue;
-        }
-        refused_alone = kept.empty();
-      }
-      if (!refused_alone) {  // refused alone, they keep their own statistics
-        for (int e : links) {
-          book->Set(e,
-                    LoopState::kRejectedJointTest,
-                    std::numeric_limits<double>::quiet_NaN(),
-                    std::numeric_limits<double>::quiet_NaN(),
-                    changed);
-        }
+      for (int e : links) {
+        book->Set(e,
+                  LoopState::kRejectedJointTest,
+                  std::numeric_limits<double>::quiet_NaN(),
+                  std::numeric_limits<double>::quiet_NaN(),
+                  changed);
       }
       book->clusters[q].in_reject = true;
       return;
@@ -584,9 +539,12 @@ void WarmEngine<Pose>::Impl::JointTestAtScale(int q, StepResult* result) {
     // a place's true ones form runs of their own) is judged again as its runs, each a cluster
     // of its own, so that a wrong run does not take the true ones down with it; the runs that
     // fail then challenge together what bent them (ChallengeAsWhole).
-    if (Runs(links).size() >= 2) {
+    const std::vector<std::vector<int>> runs = Runs(links);
+    if (runs.size() >= 2) {
       good.Rollback();
-      JudgedAsRuns(q, components, result);
+      const std::vector<int> whole = links;  // JudgeRuns splits the cluster
+      JudgeRuns(q, runs, result);
+      ChallengeAsWhole(whole, components, result);
       return;
     }
     // Lone links judged together (no two near each other) that fail as a whole: those that would
@@ -598,7 +556,16 @@ void WarmEngine<Pose>::Impl::JointTestAtScale(int q, StepResult* result) {
     bool refused_alone = false;  // every link failed on its own too, and keeps that statistic
     if (links.size() >= 2 && AllLone(links)) {
       good.Rollback();
-      const std::vector<int> kept = KeepPassingAlone(links, changed);
+      const std::vector<double> statistic = LinkStatistics(links);
+      const double alone = ThresholdsAt(variance).Of(d);
+      std::vector<int> kept;
+      for (size_t k = 0; k < links.size(); ++k) {
+        if (statistic[k] < alone) {
+          kept.push_back(links[k]);
+        } else {
+          book->Set(links[k], LoopState::kRejectedJointTest, statistic[k], alone, changed);
+        }
+      }
       if (!kept.empty() && kept.size() < links.size()) {
         links = kept;
         continue;

@@ -242,9 +242,6 @@ struct WarmEngine<Pose>::Impl {
   // stays q, each other becomes a cluster of its own; each is joint-tested on its own, largest
   // first (a run of one link the good set cannot check waits, as in Judge).
   void JudgeRuns(int q, std::vector<std::vector<int>> runs, StepResult* result);
-  // Cluster q (not during a trial) judged as its runs if it holds two or more, then the runs that
-  // failed challenge together (ChallengeAsWhole); false if it is one run.
-  bool JudgedAsRuns(int q, const std::vector<int>& components, StepResult* result);
 
   bool IncreasePasses(const typename GoodSet<Pose>::Trial& trial) const {
     return trial.ok && (trial.dof <= 0.0 || trial.increase < Threshold(trial.dof));
@@ -261,10 +258,6 @@ struct WarmEngine<Pose>::Impl {
   void JointTest(int q, StepResult* result);
 
   void JointTestAtScale(int q, StepResult* result);
-  // Of lone links judged together, those whose linearized statistic alone against the good set
-  // is at least the link threshold at the global factor are refused at it; the rest (returned)
-  // stay to be judged again. Not during a trial.
-  std::vector<int> KeepPassingAlone(const std::vector<int>& links, std::vector<int>* changed);
 
   // When no good cluster is inconsistent at the open trial of cluster q (of two links or more)
   // that failed the joint test: the smaller good clusters, and the lone links (near no other of

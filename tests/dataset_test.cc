@@ -306,18 +306,6 @@ TEST_CASE("Manhattan + 2000 local-grouped, seed 2: runs that failed one by one c
   CHECK(Reversals(run.steps) >= 1);
 }
 
-// Manhattan + 2000 random, seed 3: a cluster of lone links whose trial did not settle (two true,
-// 810 -> 1772 and 848 -> 1782, with the wrong 962 -> 1955) was refused whole, and so were six
-// true lone links (907 -> 2162, 923 -> 2163, ...) judged with the wrong 1140 -> 2233: 2091 of
-// 2099. A trial that does not settle is now followed as one that fails: the links that fail alone
-// leave, the rest is judged again.
-TEST_CASE("Manhattan + 2000 random, seed 3: a trial that does not settle is judged link by link",
-          "[datasets][irrr]") {
-  const CorruptedRun run =
-      RunCorrupted("manhattan/vertigo/Olson/manhattanOlson3500.g2o", OutlierMode::kRandom, 2000, 3);
-  CheckNoneWrongEveryTrue(run);
-}
-
 // What a reversed cluster made the tests refuse, and true lone links judged with wrong ones, come
 // back (docs/decisions.md, "Reversing and recovering"):
 // - Manhattan + 1000 random-grouped, seed 10: the wrong group 86-88 -> 2917-2919 bent the map
