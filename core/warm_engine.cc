@@ -584,10 +584,9 @@ void WarmEngine<Pose>::Impl::JointTestAtScale(int q, StepResult* result) {
       if (g_index >= 1.0) ranked.push_back({g_index, g});
     }
     if (ranked.empty()) {
+      // A lone link of a larger cluster leaves it, so that it can be challenged alone.
       for (const Bending& b : BendingClusters(q, components)) {
-        // A lone link of a larger cluster leaves it, so that it can be challenged alone.
-        const bool part = b.links.size() < book->clusters[b.cluster].links.size();
-        ranked.push_back({b.index, part ? SplitOffGood(b.cluster, b.links) : b.cluster});
+        ranked.push_back({b.index, SuspectOf(b)});
       }
     }
     std::sort(ranked.rbegin(), ranked.rend());
@@ -644,6 +643,22 @@ std::vector<typename WarmEngine<Pose>::Impl::Bending> WarmEngine<Pose>::Impl::Be
     ranked.push_back({index, owner[k], groups[k]});
   }
   return ranked;
+}
+
+template <class Pose>
+int WarmEngine<Pose>::Impl::SuspectOf(const Bending& b) {
+  const bool part = b.links.size() < book->clusters[b.cluster].links.size();
+  return part ? SplitOffGood(b.cluster, b.links) : b.cluster;
+}
+
+template <class Pose>
+void WarmEngine<Pose>::Impl::MergeBack(int part, int g) {
+  JudgedCluster& p = book->clusters[part];
+  for (int e : p.links) book->decisions[e].cluster = g;
+  std::vector<int>& links = book->clusters[g].links;
+  links.insert(links.end(), p.links.begin(), p.links.end());
+  p.links.clear();
+  p.in_good = false;
 }
 
 template <class Pose>

@@ -273,8 +273,13 @@ struct WarmEngine<Pose>::Impl {
     std::vector<int> links;  // the whole cluster, or one lone link of it
   };
   std::vector<Bending> BendingClusters(int q, const std::vector<int>& components) const;
+  // The suspect a ranked group stands for: its cluster, or the group split off into a good
+  // cluster of its own (SplitOffGood) when it is a part of it.
+  int SuspectOf(const Bending& b);
   // SplitOff for a good cluster: the part stays good, accepted at the same factor.
   int SplitOffGood(int g, const std::vector<int>& links);
+  // The links of a part split off go back to cluster g; the part is left empty.
+  void MergeBack(int part, int g);
 
   // Links `links` of cluster q leave it for a new closed cluster between the same sessions
   // (returned), their decisions with them.

@@ -292,29 +292,17 @@ void WarmEngine<Pose>::Impl::ChallengeAsWhole(const std::vector<int>& whole,
   std::sort(ranked.rbegin(), ranked.rend());
   std::vector<std::pair<int, int>> parts;  // (part split off, the cluster it left)
   std::vector<int> suspects;               // most inconsistent first
-  for (const auto& [unused, k] : ranked) {
-    const int g = owner[k];
-    if (groups[k].size() < book->clusters[g].links.size()) {
-      parts.push_back({SplitOffGood(g, groups[k]), g});
-      suspects.push_back(parts.back().first);
-    } else {
-      suspects.push_back(g);
-    }
+  for (const auto& [index, k] : ranked) {
+    suspects.push_back(SuspectOf({index, owner[k], groups[k]}));
+    if (suspects.back() != owner[k]) parts.push_back({suspects.back(), owner[k]});
   }
   for (int g : suspects) {
     std::vector<int>& opponents = book->clusters[g].opponents;
     opponents.insert(opponents.end(), failed.begin(), failed.end());
   }
   Challenge(suspects, components, result);
-  // A part that stays good goes back to its cluster.
   for (const auto& [part, g] : parts) {
-    JudgedCluster& p = book->clusters[part];
-    if (!p.in_good || !book->clusters[g].in_good) continue;
-    for (int e : p.links) book->decisions[e].cluster = g;
-    std::vector<int>& links = book->clusters[g].links;
-    links.insert(links.end(), p.links.begin(), p.links.end());
-    p.links.clear();
-    p.in_good = false;
+    if (book->clusters[part].in_good && book->clusters[g].in_good) MergeBack(part, g);
   }
 }
 
