@@ -161,22 +161,31 @@ std::vector<std::vector<int>> PairwiseConsistency<Pose>::ConsistentSubsets(
       for (int j : remaining) {
         if (j != seed && consistent[seed][j]) candidates.push_back(j);
       }
+      // Each candidate's partners among the candidates, kept as candidates leave (O(n^2) per
+      // seed instead of counting them again at each pick).
+      std::vector<int> partners(n, 0);
+      for (int c : candidates) {
+        for (int o : candidates) partners[c] += o != c && consistent[c][o] ? 1 : 0;
+      }
       while (!candidates.empty()) {
-        // The candidate consistent with most of the other candidates joins.
+        // The candidate consistent with most of the other candidates joins (the first of them).
         int pick = -1;
         int pick_partners = -1;
         for (int c : candidates) {
-          int partners = 0;
-          for (int o : candidates) partners += o != c && consistent[c][o] ? 1 : 0;
-          if (partners > pick_partners) {
+          if (partners[c] > pick_partners) {
             pick = c;
-            pick_partners = partners;
+            pick_partners = partners[c];
           }
         }
         clique.push_back(pick);
         std::vector<int> still;
+        std::vector<int> gone;
         for (int c : candidates) {
-          if (c != pick && consistent[pick][c]) still.push_back(c);
+          if (c != pick) (consistent[pick][c] ? still : gone).push_back(c);
+        }
+        for (int c : still) {
+          partners[c] -= 1;  // the pick
+          for (int o : gone) partners[c] -= consistent[c][o] ? 1 : 0;
         }
         candidates.swap(still);
       }
