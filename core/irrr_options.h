@@ -37,8 +37,8 @@ struct IrrrOptions {
   // Manhattan), while wrong ones stand far above either threshold. The paper engine: 0.95.
   double alpha = 0.999;
   // Warm engine: the variance factor of the information matrices (the residuals' real covariance
-  // over the one the information claims). 0: estimated from the data's redundancy; a positive
-  // value fixes it (1: trust the information as given).
+  // over the one the information claims). 0: estimated from the data's redundancy, used within
+  // [1e-6, 1]; a positive value fixes it (1: trust the information as given).
   double variance_factor = 0.0;
   double cluster_gap = 50.0;  // t_g of eq. (6), in stamp units (poses for files, seconds live)
   // Beyond the paper: a cluster closes at the latest when its later side spans this many cluster
@@ -63,7 +63,7 @@ struct StepResult {
   int iterations = 0;              // their Gauss-Newton iterations (a linear solve each)
   double chi2 = 0.0;               // of the good set of the sessions the step touched, at the end
   double variance_factor = 1.0;    // the variance factor the step's tests used
-  double variance_estimate = 1.0;  // the one the data gave (warm engine; tests use at most 1)
+  double variance_estimate = 1.0;  // the one the data gave (warm engine; tests: within [1e-6, 1])
   int reversals = 0;               // good clusters reversed by later evidence
 };
 
