@@ -407,11 +407,6 @@ TEST_CASE("Ring + 100 random, seed 7: a wrong link that bends the odometry leave
   CHECK(LargestFactorDecidedAt(run.steps) < 0.5);
 }
 
-// KITTI 05 (place recognition at alpha 0.5, labelled true loops). The matches along one revisit
-// share their error, so the clusters' own redundancy puts the variance factor at 0.16; the good
-// set's, which also sees how the revisits disagree with each other and with the odometry, at
-// 0.27. The factor used is the larger, and the clusters refused while it was lower are judged
-// again: 59 of the 62 true loops accepted (57 with the clusters' factor alone), none wrong.
 // FRH (Freiburg hospital, Carlone's TORO file) is exact to its file's 4-6 decimals: its redundancy
 // says a variance factor of 1.7e-8, and at that factor the rounding of a loop's numbers failed the
 // tests (80 of 1505 true loops refused, with or without wrong ones). The factor stops at 1e-6.
@@ -425,6 +420,11 @@ TEST_CASE("FRH, exact to its file's decimals: every true loop accepted at the fa
   }
 }
 
+// KITTI 05 (place recognition at alpha 0.5, labelled true loops). The matches along one revisit
+// share their error, so the clusters' own redundancy puts the variance factor at 0.16; the good
+// set's, which also sees how the revisits disagree with each other and with the odometry, at
+// 0.27. The factor used is the larger, and the clusters refused while it was lower are judged
+// again: 59 of the 62 true loops accepted (57 with the clusters' factor alone), none wrong.
 TEST_CASE("KITTI 05: the good set's variance factor, and what a lower one refused judged again",
           "[datasets][irrr]") {
   GraphFile<Pose2> file;

@@ -138,6 +138,61 @@ TEMPLATE_TEST_CASE(
   CHECK(far.linearized == Approx(far.exact).epsilon(0.05));
 }
 
+TEMPLATE_TEST_CASE(
+    "On a linear graph a group of links sharing poses adds and gives back its exact chi2 increase",
+    "[statistics]",
+    Pose2,
+    Pose3) {
+  // The last three loops, the last one twice (a duplicate shares both its poses), tested as one
+  // group: the cross terms of J Sigma J' between links and the poses they share count.
+  SyntheticOptions linear;
+  linear.num_poses = 120;
+  linear.translation_sigma_m = 0.05;
+  linear.rotation_sigma_rad = 1e-7;
+  linear.loop_probability = 0.3;
+  linear.seed = 4;
+  PoseGraph<TestType> graph = MakeSyntheticGraph<TestType>(linear).graph;
+  std::vector<int> group;
+  for (int e = graph.num_edges() - 1; e >= 0 && group.size() < 3; --e) {
+    if (graph.edge(e).kind == EdgeKind::kLoop) group.push_back(e);
+  }
+  REQUIRE(group.size() == 3);
+  const Edge<TestType> last = graph.edge(group.front());
+  int duplicate = -1;
+  REQUIRE(graph.AddLoop(last.from, last.to, last.measurement, last.information, &duplicate).ok());
+  group.push_back(duplicate);
+  std::vector<const Edge<TestType>*> edges;
+  std::vector<int> vertices;
+  std::vector<char> good(graph.num_edges(), 1);
+  for (int e : group) {
+    edges.push_back(&graph.edge(e));
+    good[e] = 0;
+    for (int v : {graph.edge(e).from, graph.edge(e).to}) {
+      if (std::find(vertices.begin(), vertices.end(), v) == vertices.end()) vertices.push_back(v);
+    }
+  }
+  REQUIRE(vertices.size() < 2 * group.size());
+  std::vector<TestType> x = graph.initial_estimate();
+  Optimizer<TestType> optimizer;
+  const OptimizerSummary base = optimizer.Solve(graph, good, &x);
+  REQUIRE(base.termination == TerminationType::kConvergence);
+  Eigen::MatrixXd covariance;
+  REQUIRE(optimizer.FactorizeAt(graph, good, x));
+  REQUIRE(optimizer.Covariance(vertices, &covariance));
+  const double added = LinearizeAddition<TestType>(edges, x, vertices, covariance).chi2_increase;
+  const std::vector<char> all(graph.num_edges(), 1);
+  const OptimizerSummary joint = optimizer.Solve(graph, all, &x);
+  REQUIRE(joint.termination == TerminationType::kConvergence);
+  const double exact = joint.final_chi2 - base.final_chi2;
+  REQUIRE(optimizer.FactorizeAt(graph, all, x));
+  REQUIRE(optimizer.Covariance(vertices, &covariance));
+  const double removed = LinearizeRemoval<TestType>(edges, x, vertices, covariance);
+  INFO("exact " << exact << ", linearized addition " << added << ", removal " << removed);
+  CHECK(exact > 0.1);
+  CHECK(added == Approx(exact).epsilon(1e-5));
+  CHECK(removed == Approx(exact).epsilon(1e-5));
+}
+
 // Chi2 of the optimum with the loops `extra` added to the good set `good`, started from `x`.
 template <class Pose>
 double OptimumChi2(const PoseGraph<Pose>& graph,
