@@ -103,20 +103,26 @@ Increase<Pose> LinkIncrease(const PoseGraph<Pose>& graph) {
   return out;
 }
 
-TEMPLATE_TEST_CASE(
-    "On a linear graph the linearized screen and removal equal the chi2 increase, and the "
-    "redundancy one minus the leverage",
-    "[statistics]",
-    Pose2,
-    Pose3) {
-  // Rotations known to 1e-7 rad and translations noisy: the problem is linear in the
-  // translations to within rounding, and the screen's statistic is the exact chi2 increase.
+// Rotations known to 1e-7 rad and translations noisy: the problem is linear in the translations
+// to within rounding.
+SyntheticOptions LinearSyntheticOptions() {
   SyntheticOptions linear;
   linear.num_poses = 120;
   linear.translation_sigma_m = 0.05;
   linear.rotation_sigma_rad = 1e-7;
   linear.loop_probability = 0.3;
   linear.seed = 4;
+  return linear;
+}
+
+TEMPLATE_TEST_CASE(
+    "On a linear graph the linearized screen and removal equal the chi2 increase, and the "
+    "redundancy one minus the leverage",
+    "[statistics]",
+    Pose2,
+    Pose3) {
+  // The screen's statistic is the exact chi2 increase there.
+  const SyntheticOptions linear = LinearSyntheticOptions();
   const Increase<TestType> near = LinkIncrease(MakeSyntheticGraph<TestType>(linear).graph);
   INFO("linearized " << near.linearized << ", exact " << near.exact);
   CHECK(near.exact > 0.1);
@@ -145,12 +151,7 @@ TEMPLATE_TEST_CASE(
     Pose3) {
   // The last three loops, the last one twice (a duplicate shares both its poses), tested as one
   // group: the cross terms of J Sigma J' between links and the poses they share count.
-  SyntheticOptions linear;
-  linear.num_poses = 120;
-  linear.translation_sigma_m = 0.05;
-  linear.rotation_sigma_rad = 1e-7;
-  linear.loop_probability = 0.3;
-  linear.seed = 4;
+  const SyntheticOptions linear = LinearSyntheticOptions();
   PoseGraph<TestType> graph = MakeSyntheticGraph<TestType>(linear).graph;
   std::vector<int> group;
   for (int e = graph.num_edges() - 1; e >= 0 && group.size() < 3; --e) {
