@@ -15,6 +15,11 @@ namespace {
 // FRH's loops are exact to their file's 4-6 decimals, its redundancy says 1.7e-8, and at that
 // factor 80 of its 1505 true loops were refused.
 constexpr double kNoiselessFactor = 1e-6;
+// The factor the tests use for an estimate. Never above 1: the data cannot tell over-confident
+// information from wrong links clustered with true ones (on KITTI an estimate above 1 let hundreds
+// of wrong loops in; at 1 none). Never below kNoiselessFactor.
+double TestFactor(double estimate) { return std::clamp(estimate, kNoiselessFactor, 1.0); }
+
 // A cluster of one link needs at least this redundancy number to be judged (Unsupported).
 constexpr double kMinRedundancy = 0.1;
 // The variance factor's degrees of freedom are those of its samples, at most this many: the
@@ -75,10 +80,8 @@ typename WarmEngine<Pose>::Impl::Scale WarmEngine<Pose>::Impl::CurrentScale() co
   }
   if (!enough) return scale;
   scale.known = true;
-  // Never above 1: the data cannot tell over-confident information from wrong links clustered
-  // with true ones (on KITTI an estimate above 1 let hundreds of wrong loops in; at 1 none).
-  scale.variance = std::clamp(robust, kNoiselessFactor, 1.0);
-  scale.clusters = std::clamp(clusters, kNoiselessFactor, 1.0);
+  scale.variance = TestFactor(robust);
+  scale.clusters = TestFactor(clusters);
   scale.dof = std::min(total, kMaxVarianceDof);
   return scale;
 }
@@ -179,7 +182,7 @@ std::vector<int> WarmEngine<Pose>::Impl::Concentrate(const std::vector<int>& all
 
 template <class Pose>
 double WarmEngine<Pose>::Impl::PairScale(const std::vector<int>& links) const {
-  return std::clamp(pairwise.PairwiseFactor(links), kNoiselessFactor, 1.0);
+  return TestFactor(pairwise.PairwiseFactor(links));
 }
 
 template <class Pose>
