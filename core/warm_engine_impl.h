@@ -8,6 +8,7 @@
 
 #include <algorithm>
 #include <limits>
+#include <map>
 #include <utility>
 #include <vector>
 
@@ -322,10 +323,28 @@ struct WarmEngine<Pose>::Impl {
   // later pin the bend, and its residuals or the odometry's grow. True links whose matches share
   // their error strain too, but the rest of the good set barely disagrees with them (Intel's 74 ->
   // 898: d^2 1.37 times its threshold, removal statistic 2.1 times).
+  // A run whose last removal statistic was below half its margin is judged again only once its
+  // strain or the variance factor has changed, or links have left the good set (RunJudgement).
   void ReverseOutvoted(StepResult* result);
-  // The runs (Runs) of good clusters within one session, accepted before this step, whose span
-  // holds an odometry edge that fails the link test at the current optimum, with their clusters.
-  std::vector<std::pair<int, std::vector<int>>> BendingRuns() const;
+  // A run of a good cluster within one session, accepted before this step, whose span holds odometry
+  // edges that fail the link test at the current optimum. Its strain: their d^2 and its own links'
+  // at the current optimum, summed.
+  struct BendingRun {
+    int cluster;
+    std::vector<int> links;
+    double strain;
+  };
+  std::vector<BendingRun> BendingRuns() const;
+  // A bending run's removal statistic over its threshold when ReverseOutvoted last computed it,
+  // with its strain, the variance factor and the good set's count of rebuilds then. While the good
+  // set only gains links, a run's removal statistic at unchanged residuals can only fall: its ends'
+  // covariance shrinks, so its residuals' own covariance grows.
+  struct RunJudgement {
+    double ratio;
+    double strain;
+    double variance;
+    long rebuilds;
+  };
   void NoteRefusals(const std::vector<int>& changed);
   // The earliest step at which a link of `clusters` last changed state (their acceptance, for
   // good clusters), at most the current step.
@@ -392,6 +411,8 @@ struct WarmEngine<Pose>::Impl {
   bool released = false;
   int rejudging = 0;            // Rejudge under way (no challenge starts inside one)
   std::vector<double> control;  // per loop edge: its redundancy number at its last screen
+  // The bending runs of ReverseOutvoted's last round, by their links.
+  std::map<std::vector<int>, RunJudgement> run_judgements;
 };
 
 }  // namespace irrr

@@ -194,6 +194,53 @@ TEMPLATE_TEST_CASE(
   CHECK(removed == Approx(exact).epsilon(1e-5));
 }
 
+TEMPLATE_TEST_CASE(
+    "At the same residuals a group's removal statistic falls as the good set gains links, and "
+    "rises as it loses them",
+    "[statistics]",
+    Pose2,
+    Pose3) {
+  // What lets the warm engine skip judging a bending run again while its strain is unchanged and
+  // no link has left the good set (ReverseOutvoted): the group's ends' covariance shrinks with
+  // every link added, so its residuals' own covariance, Omega^-1 - J Sigma J', grows. The group:
+  // the last three loops; the same estimate, two good sets.
+  SyntheticOptions options = LinearSyntheticOptions();
+  options.rotation_sigma_rad = 0.01;
+  const PoseGraph<TestType> graph = MakeSyntheticGraph<TestType>(options).graph;
+  std::vector<int> loops;
+  for (int e = 0; e < graph.num_edges(); ++e) {
+    if (graph.edge(e).kind == EdgeKind::kLoop) loops.push_back(e);
+  }
+  REQUIRE(loops.size() > 10);
+  const std::vector<int> group(loops.end() - 3, loops.end());
+  std::vector<const Edge<TestType>*> edges;
+  std::vector<int> vertices;
+  std::vector<char> sparse(graph.num_edges(), 1);  // odometry and the group
+  for (int e : loops) sparse[e] = 0;
+  for (int e : group) {
+    sparse[e] = 1;
+    edges.push_back(&graph.edge(e));
+    for (int v : {graph.edge(e).from, graph.edge(e).to}) {
+      if (std::find(vertices.begin(), vertices.end(), v) == vertices.end()) vertices.push_back(v);
+    }
+  }
+  const std::vector<char> dense(graph.num_edges(), 1);  // every loop
+  std::vector<TestType> x = graph.initial_estimate();
+  Optimizer<TestType> optimizer;
+  REQUIRE(optimizer.Solve(graph, dense, &x).termination == TerminationType::kConvergence);
+  const std::vector<char>* good[2] = {&sparse, &dense};
+  double removal[2];
+  for (int k = 0; k < 2; ++k) {
+    Eigen::MatrixXd covariance;
+    REQUIRE(optimizer.FactorizeAt(graph, *good[k], x));
+    REQUIRE(optimizer.Covariance(vertices, &covariance));
+    removal[k] = LinearizeRemoval<TestType>(edges, x, vertices, covariance);
+  }
+  INFO("removal with the group alone " << removal[0] << ", with every loop " << removal[1]);
+  CHECK(removal[1] > 0.1);
+  CHECK(removal[0] > 1.5 * removal[1]);
+}
+
 // Chi2 of the optimum with the loops `extra` added to the good set `good`, started from `x`.
 template <class Pose>
 double OptimumChi2(const PoseGraph<Pose>& graph,
