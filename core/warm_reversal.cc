@@ -101,10 +101,8 @@ void WarmEngine<Pose>::Impl::ReverseOutvoted(StepResult* result) {
         groups.empty() ? std::vector<double>() : good.LinearizeRemovals(groups);
     for (size_t k = 0; k < groups.size(); ++k) {
       if (candidates[k].strain >= 0.0) {
-        judged[groups[k]] = {removal[k] / candidates[k].threshold,
-                             candidates[k].strain,
-                             variance,
-                             rebuilds};
+        judged[groups[k]] = {
+            removal[k] / candidates[k].threshold, candidates[k].strain, variance, rebuilds};
       }
     }
     run_judgements = std::move(judged);
@@ -478,24 +476,24 @@ void WarmEngine<Pose>::Impl::Recover(int since,
 }
 
 // Judge, JointTest and the rest are instantiated with the engine (core/warm_engine.cc).
-#define IRRR_INSTANTIATE_REVERSAL(Pose)                                                        \
-  template void WarmEngine<Pose>::Impl::Revalidate(StepResult*);                               \
-  template void WarmEngine<Pose>::Impl::RejudgeRefused(StepResult*);                           \
-  template void WarmEngine<Pose>::Impl::ReverseOutvoted(StepResult*);                          \
+#define IRRR_INSTANTIATE_REVERSAL(Pose)                                                          \
+  template void WarmEngine<Pose>::Impl::Revalidate(StepResult*);                                 \
+  template void WarmEngine<Pose>::Impl::RejudgeRefused(StepResult*);                             \
+  template void WarmEngine<Pose>::Impl::ReverseOutvoted(StepResult*);                            \
   template std::vector<WarmEngine<Pose>::Impl::BendingRun> WarmEngine<Pose>::Impl::BendingRuns() \
-      const;                                                                                   \
-  template void WarmEngine<Pose>::Impl::NoteRefusals(const std::vector<int>&);                 \
-  template int WarmEngine<Pose>::Impl::EarliestStep(const std::vector<int>&) const;            \
-  template void WarmEngine<Pose>::Impl::Rejudge(std::vector<int>, StepResult*);                \
-  template void WarmEngine<Pose>::Impl::ChallengeAsWhole(                                      \
-      const std::vector<int>&, const std::vector<int>&, StepResult*);                          \
-  template void WarmEngine<Pose>::Impl::Challenge(                                             \
-      const std::vector<int>&, const std::vector<int>&, StepResult*);                          \
-  template bool WarmEngine<Pose>::Impl::Replace(                                               \
-      const std::vector<int>&, const std::vector<int>&, const std::vector<int>&, StepResult*); \
-  template bool WarmEngine<Pose>::Impl::MayPass(int);                                          \
-  template double WarmEngine<Pose>::Impl::Strain(int) const;                                   \
-  template void WarmEngine<Pose>::Impl::Recover(                                               \
+      const;                                                                                     \
+  template void WarmEngine<Pose>::Impl::NoteRefusals(const std::vector<int>&);                   \
+  template int WarmEngine<Pose>::Impl::EarliestStep(const std::vector<int>&) const;              \
+  template void WarmEngine<Pose>::Impl::Rejudge(std::vector<int>, StepResult*);                  \
+  template void WarmEngine<Pose>::Impl::ChallengeAsWhole(                                        \
+      const std::vector<int>&, const std::vector<int>&, StepResult*);                            \
+  template void WarmEngine<Pose>::Impl::Challenge(                                               \
+      const std::vector<int>&, const std::vector<int>&, StepResult*);                            \
+  template bool WarmEngine<Pose>::Impl::Replace(                                                 \
+      const std::vector<int>&, const std::vector<int>&, const std::vector<int>&, StepResult*);   \
+  template bool WarmEngine<Pose>::Impl::MayPass(int);                                            \
+  template double WarmEngine<Pose>::Impl::Strain(int) const;                                     \
+  template void WarmEngine<Pose>::Impl::Recover(                                                 \
       int, const std::vector<int>&, const std::vector<int>&, StepResult*);
 IRRR_INSTANTIATE_REVERSAL(Pose2)
 IRRR_INSTANTIATE_REVERSAL(Pose3)
