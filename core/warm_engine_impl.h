@@ -326,9 +326,9 @@ struct WarmEngine<Pose>::Impl {
   // A run whose last removal statistic was below half its margin is judged again only once its
   // strain or the variance factor has changed, or links have left the good set (RunJudgement).
   void ReverseOutvoted(StepResult* result);
-  // A run of a good cluster within one session, accepted before this step, whose span holds odometry
-  // edges that fail the link test at the current optimum. Its strain: their d^2 and its own links'
-  // at the current optimum, summed.
+  // A run of a good cluster within one session, accepted before this step, whose span holds
+  // odometry edges that fail the link test at the current optimum. Its strain: their d^2 and its
+  // own links' at the current optimum, summed.
   struct BendingRun {
     int cluster;
     std::vector<int> links;
