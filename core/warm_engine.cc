@@ -383,9 +383,17 @@ std::vector<std::vector<int>> WarmEngine<Pose>::Impl::Runs(const std::vector<int
   std::vector<int> run(links.size());
   for (size_t k = 0; k < links.size(); ++k) run[k] = static_cast<int>(k);
   std::function<int(int)> root = [&](int k) { return run[k] == k ? k : run[k] = root(run[k]); };
-  for (size_t a = 0; a < links.size(); ++a) {
-    for (size_t b = 0; b < a; ++b) {
-      if (Near(links[a], links[b])) run[root(static_cast<int>(a))] = root(static_cast<int>(b));
+  // Two links are Near only if their lower ends lie within kRunGap of each other: each is compared
+  // with those after it in the order of lower ends, up to kRunGap further (every pair was
+  // compared before: 10% of W10000's time, with clusters of thousands of links).
+  auto lower = [&](int k) {
+    return std::min(graph->edge(links[k]).from, graph->edge(links[k]).to);
+  };
+  std::vector<int> order(run);
+  std::sort(order.begin(), order.end(), [&](int a, int b) { return lower(a) < lower(b); });
+  for (size_t i = 0; i < order.size(); ++i) {
+    for (size_t j = i + 1; j < order.size() && lower(order[j]) - lower(order[i]) <= kRunGap; ++j) {
+      if (Near(links[order[i]], links[order[j]])) run[root(order[i])] = root(order[j]);
     }
   }
   std::vector<std::vector<int>> runs;
