@@ -144,6 +144,28 @@ TEMPLATE_TEST_CASE(
   CHECK(far.linearized == Approx(far.exact).epsilon(0.05));
 }
 
+// The edges of `group` and their end poses, each once, as LinearizeAddition and LinearizeRemoval
+// take them.
+template <class Pose>
+struct Group {
+  std::vector<const Edge<Pose>*> edges;
+  std::vector<int> vertices;
+};
+
+template <class Pose>
+Group<Pose> GroupOf(const PoseGraph<Pose>& graph, const std::vector<int>& group) {
+  Group<Pose> out;
+  for (int e : group) {
+    out.edges.push_back(&graph.edge(e));
+    for (int v : {graph.edge(e).from, graph.edge(e).to}) {
+      if (std::find(out.vertices.begin(), out.vertices.end(), v) == out.vertices.end()) {
+        out.vertices.push_back(v);
+      }
+    }
+  }
+  return out;
+}
+
 TEMPLATE_TEST_CASE(
     "On a linear graph a group of links sharing poses adds and gives back its exact chi2 increase",
     "[statistics]",
@@ -162,16 +184,9 @@ TEMPLATE_TEST_CASE(
   int duplicate = -1;
   REQUIRE(graph.AddLoop(last.from, last.to, last.measurement, last.information, &duplicate).ok());
   group.push_back(duplicate);
-  std::vector<const Edge<TestType>*> edges;
-  std::vector<int> vertices;
+  const auto [edges, vertices] = GroupOf(graph, group);
   std::vector<char> good(graph.num_edges(), 1);
-  for (int e : group) {
-    edges.push_back(&graph.edge(e));
-    good[e] = 0;
-    for (int v : {graph.edge(e).from, graph.edge(e).to}) {
-      if (std::find(vertices.begin(), vertices.end(), v) == vertices.end()) vertices.push_back(v);
-    }
-  }
+  for (int e : group) good[e] = 0;
   REQUIRE(vertices.size() < 2 * group.size());
   std::vector<TestType> x = graph.initial_estimate();
   Optimizer<TestType> optimizer;
@@ -213,17 +228,10 @@ TEMPLATE_TEST_CASE(
   }
   REQUIRE(loops.size() > 10);
   const std::vector<int> group(loops.end() - 3, loops.end());
-  std::vector<const Edge<TestType>*> edges;
-  std::vector<int> vertices;
+  const auto [edges, vertices] = GroupOf(graph, group);
   std::vector<char> sparse(graph.num_edges(), 1);  // odometry and the group
   for (int e : loops) sparse[e] = 0;
-  for (int e : group) {
-    sparse[e] = 1;
-    edges.push_back(&graph.edge(e));
-    for (int v : {graph.edge(e).from, graph.edge(e).to}) {
-      if (std::find(vertices.begin(), vertices.end(), v) == vertices.end()) vertices.push_back(v);
-    }
-  }
+  for (int e : group) sparse[e] = 1;
   const std::vector<char> dense(graph.num_edges(), 1);  // every loop
   std::vector<TestType> x = graph.initial_estimate();
   Optimizer<TestType> optimizer;
