@@ -31,7 +31,8 @@ constexpr double kScaleMinimumDof = 30.0;
 // A cluster with this much redundancy of its own is judged at the larger of the global factor and
 // its own.
 constexpr double kOwnFactorMinimumDof = 18.0;
-// ... and at most this many times the global factor (the measurements: docs/decisions.md).
+// ... and at most this many times the global factor (the measurements: docs/decisions.md); the
+// good set's factor counts for at most this many times the clusters'.
 constexpr double kOwnFactorRatio = 2.0;
 // Trimming rounds of a cluster's variance sample before any factor is known (Calibrate).
 constexpr int kCalibrationRounds = 6;
@@ -65,11 +66,14 @@ typename WarmEngine<Pose>::Impl::Scale WarmEngine<Pose>::Impl::CurrentScale() co
   // The good set's redundancy holds what the clusters' own cannot: how clusters disagree with
   // each other and with the odometry. A place recognizer's matches along one revisit share their
   // error, so their cluster's redundancy understates the noise (KITTI 05: 0.16 from the clusters,
-  // 0.27 from the good set).
+  // 0.27 from the good set). It counts for at most kOwnFactorRatio times the clusters' median:
+  // wrong groups that got into the good set (say while clusters mixing them with true links held
+  // the estimate at 1) raise its chi2 too, and they must be judged at the lower factor to leave.
   double robust = clusters;
   const RedundancySample good_set = GoodSetRedundancy();
   if (enough && good_set.dof >= kScaleMinimumDof) {
-    robust = std::max(robust, RobustVarianceFactor({good_set}));
+    robust =
+        std::max(robust, std::min(RobustVarianceFactor({good_set}), kOwnFactorRatio * clusters));
   }
   if (enough) scale.estimate = robust;
   if (options->variance_factor > 0.0) {
