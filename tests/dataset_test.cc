@@ -423,9 +423,9 @@ TEST_CASE("FRH, exact to its file's decimals: every true loop accepted at the fa
 // CSAIL (128 true loops) + 1000 local wrong loops in groups of 3, seeds 7 and 8: the first
 // cluster to carry 30 degrees of freedom mixes true links and wrong groups and puts the factor
 // above 1, so the first steps test at the information as given and let wrong groups in (6 and 3).
-// The clusters' median then falls to 0.12, but the good set's factor, raised by those groups,
-// stayed at 0.29 and 0.50 while it was used whole; at most twice the clusters', it lets them be
-// judged at the lower factor and reversed (CSAIL's other runs: 0.074-0.12).
+// With seed 7 the clusters' median then falls to 0.12, but the good set's factor, raised by those
+// groups, stayed at 0.29 (0.50 with seed 8) while it was used whole; at most twice the clusters',
+// it lets them be judged at the lower factor and reversed (CSAIL's other runs: 0.074-0.12).
 TEST_CASE("CSAIL + 1000 local-grouped: what got in at the factor 1 leaves once it falls",
           "[datasets][irrr]") {
   for (int seed : {7, 8}) {
