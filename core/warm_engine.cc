@@ -390,9 +390,7 @@ std::vector<std::vector<int>> WarmEngine<Pose>::Impl::Runs(const std::vector<int
   // Two links are Near only if their lower ends lie within kRunGap of each other: each is compared
   // with those after it in the order of lower ends, up to kRunGap further (every pair was
   // compared before: 10% of W10000's time, with clusters of thousands of links).
-  auto lower = [&](int k) {
-    return std::min(graph->edge(links[k]).from, graph->edge(links[k]).to);
-  };
+  auto lower = [&](int k) { return LowerEnd(graph->edge(links[k])); };
   std::vector<int> order(run);
   std::sort(order.begin(), order.end(), [&](int a, int b) { return lower(a) < lower(b); });
   for (size_t i = 0; i < order.size(); ++i) {
@@ -427,8 +425,8 @@ template <class Pose>
 bool WarmEngine<Pose>::Impl::Near(int a, int b) const {
   const Edge<Pose>& x = graph->edge(a);
   const Edge<Pose>& y = graph->edge(b);
-  return std::abs(std::min(x.from, x.to) - std::min(y.from, y.to)) <= kRunGap &&
-         std::abs(std::max(x.from, x.to) - std::max(y.from, y.to)) <= kRunGap;
+  return std::abs(LowerEnd(x) - LowerEnd(y)) <= kRunGap &&
+         std::abs(UpperEnd(x) - UpperEnd(y)) <= kRunGap;
 }
 
 template <class Pose>

@@ -22,6 +22,16 @@
 
 namespace irrr {
 
+// The lower and the higher index of an edge's two poses.
+template <class Pose>
+int LowerEnd(const Edge<Pose>& edge) {
+  return std::min(edge.from, edge.to);
+}
+template <class Pose>
+int UpperEnd(const Edge<Pose>& edge) {
+  return std::max(edge.from, edge.to);
+}
+
 template <class Pose>
 struct WarmEngine<Pose>::Impl {
   static constexpr int d = Pose::kDim;

@@ -67,7 +67,6 @@ void WarmEngine<Pose>::Impl::ReverseOutvoted(StepResult* result) {
       int cluster;
       double threshold;
       double margin;
-      double strain;  // of a bending run; -1 for a link
     };
     std::vector<std::vector<int>> groups;
     std::vector<Candidate> candidates;
@@ -78,9 +77,12 @@ void WarmEngine<Pose>::Impl::ReverseOutvoted(StepResult* result) {
       for (int e : c.links) {
         if (good.EdgeChi2(e) < threshold) continue;
         groups.push_back({e});
-        candidates.push_back({g, threshold, kScreenMargin, -1.0});
+        candidates.push_back({g, threshold, kScreenMargin});
       }
     }
+    // The bending runs judged this round: groups[first_run] on, with their strains.
+    const size_t first_run = groups.size();
+    std::vector<double> strains;
     std::map<std::vector<int>, RunJudgement> judged;
     const long rebuilds = good.counters().rebuilds;
     for (BendingRun& run : BendingRuns()) {
@@ -94,16 +96,14 @@ void WarmEngine<Pose>::Impl::ReverseOutvoted(StepResult* result) {
       groups.push_back(std::move(run.links));
       candidates.push_back({run.cluster,
                             Threshold(d * static_cast<double>(groups.back().size())),
-                            kBendingRunMargin,
-                            run.strain});
+                            kBendingRunMargin});
+      strains.push_back(run.strain);
     }
     const std::vector<double> removal =
         groups.empty() ? std::vector<double>() : good.LinearizeRemovals(groups);
-    for (size_t k = 0; k < groups.size(); ++k) {
-      if (candidates[k].strain >= 0.0) {
-        judged[groups[k]] = {
-            removal[k] / candidates[k].threshold, candidates[k].strain, variance, rebuilds};
-      }
+    for (size_t k = first_run; k < groups.size(); ++k) {
+      judged[groups[k]] = {
+          removal[k] / candidates[k].threshold, strains[k - first_run], variance, rebuilds};
     }
     run_judgements = std::move(judged);
     if (groups.empty()) return;
@@ -145,7 +145,7 @@ std::vector<typename WarmEngine<Pose>::Impl::BendingRun> WarmEngine<Pose>::Impl:
     if (good.ComponentOf(session) < 0) continue;
     const double chi2 = good.EdgeChi2(e);
     if (chi2 < LinkThreshold()) continue;
-    strained.push_back({session, std::min(edge.from, edge.to), chi2});
+    strained.push_back({session, LowerEnd(edge), chi2});
   }
   std::vector<BendingRun> bending;
   if (strained.empty()) return bending;
@@ -159,8 +159,8 @@ std::vector<typename WarmEngine<Pose>::Impl::BendingRun> WarmEngine<Pose>::Impl:
       int lo = std::numeric_limits<int>::max();
       int hi = -1;
       for (int e : run) {
-        lo = std::min({lo, graph->edge(e).from, graph->edge(e).to});
-        hi = std::max({hi, graph->edge(e).from, graph->edge(e).to});
+        lo = std::min(lo, LowerEnd(graph->edge(e)));
+        hi = std::max(hi, UpperEnd(graph->edge(e)));
       }
       double strain = 0.0;
       for (int e : run) strain += good.EdgeChi2(e);
