@@ -188,7 +188,8 @@ struct WarmEngine<Pose>::Impl {
   // A cluster of one link (none of its own to support it) whose end poses the good set knows far
   // worse than the link measures them (redundancy number below kMinRedundancy, or in two
   // components): the link would bend the estimate to fit whatever it says, so no test can tell
-  // it wrong.
+  // it wrong. Also one whose linearized statistic at its last screen is over its threshold: only
+  // a bend beyond the linear model would make the joint test pass it.
   bool Unsupported(int q) const;
 
   // An unsupported cluster waits, as judged by nothing yet, for a good set that can check it.
@@ -419,8 +420,9 @@ struct WarmEngine<Pose>::Impl {
   double variance_dof = std::numeric_limits<double>::infinity();
   bool scale_known = false;
   bool released = false;
-  int rejudging = 0;            // Rejudge under way (no challenge starts inside one)
-  std::vector<double> control;  // per loop edge: its redundancy number at its last screen
+  int rejudging = 0;               // Rejudge under way (no challenge starts inside one)
+  std::vector<double> control;     // per loop edge: its redundancy number at its last screen
+  std::vector<double> linearized;  // per loop edge: its linearized statistic there
   // The bending runs of ReverseOutvoted's last round, by their links.
   std::map<std::vector<int>, RunJudgement> run_judgements;
 };

@@ -175,21 +175,22 @@ struct CorruptedRun {
   std::vector<StepResult> steps;
 };
 
+template <class Pose = Pose2>
 CorruptedRun RunCorrupted(
     const std::string& relative, OutlierMode mode, int count, int seed, int group_size = 3) {
-  GraphFile<Pose2> file;
-  PoseGraph<Pose2> clean;
+  GraphFile<Pose> file;
+  PoseGraph<Pose> clean;
   REQUIRE(Load(relative, ReadOptions(), &file, &clean).ok());
   OutlierOptions outliers;
   outliers.mode = mode;
   outliers.count = count;
   outliers.seed = seed;
   outliers.group_size = group_size;
-  const testing::Corrupted<Pose2> corrupted = testing::Corrupt(clean, outliers);
-  const PoseGraph<Pose2>& graph = corrupted.graph;
+  const testing::Corrupted<Pose> corrupted = testing::Corrupt(clean, outliers);
+  const PoseGraph<Pose>& graph = corrupted.graph;
   CorruptedRun run;
   const std::vector<LoopDecision> decisions =
-      RunIncrementalIrrr<Pose2>(graph, IrrrOptions(), nullptr, &run.steps);
+      RunIncrementalIrrr<Pose>(graph, IrrrOptions(), nullptr, &run.steps);
   const testing::AcceptedLoops accepted = testing::CountAccepted(corrupted, decisions);
   run.true_loops = accepted.true_loops;
   run.accepted_true = accepted.accepted_true;
@@ -439,6 +440,19 @@ TEST_CASE("CSAIL + 1000 local-grouped: what got in at the factor 1 leaves once i
     CHECK(Reversals(run.steps) >= 1);
     CHECK(run.steps.back().variance_factor < 0.15);
   }
+}
+
+// Torus3D + 1000 random wrong loops, seed 7: the wrong 4936 -> 2427 (8.5 m and 92 degrees off)
+// arrives while the loops of the 100 poses before it are still open, so it hangs on a loose tail
+// (0.05 rad of heading per step). Its redundancy number (0.1013) let it be judged, and at the
+// joint optimum the tail turned to fit it, under its threshold, though its linearized statistic
+// was 2.7 times that threshold; the true 4936 -> 36 then failed against it (120.8 against
+// 118.3). Held while its linearized statistic refuses it, it is judged once the tail is held.
+TEST_CASE("Torus3D + 1000 random, seed 7: a lone link only a bend can fit waits",
+          "[datasets][irrr]") {
+  const CorruptedRun run =
+      RunCorrupted<Pose3>("torus3d/torus3D.g2o", OutlierMode::kRandom, 1000, 7);
+  CheckNoneWrongEveryTrue(run);
 }
 
 // KITTI 05 (place recognition at alpha 0.5, labelled true loops). The matches along one revisit
