@@ -447,7 +447,8 @@ TEST_CASE("CSAIL + 1000 local-grouped: what got in at the factor 1 leaves once i
 // (0.05 rad of heading per step). Its redundancy number (0.1013) let it be judged, and at the
 // joint optimum the tail turned to fit it, under its threshold, though its linearized statistic
 // was 2.7 times that threshold; the true 4936 -> 36 then failed against it (120.8 against
-// 118.3). Held while its linearized statistic refuses it, it is judged once the tail is held.
+// 118.3). Held while its linearized statistic refuses it, it never gets in (it ends pending), and
+// the true 4936 -> 36 is accepted.
 TEST_CASE("Torus3D + 1000 random, seed 7: a lone link only a bend can fit waits",
           "[datasets][irrr]") {
   const CorruptedRun run =
