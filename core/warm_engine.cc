@@ -344,16 +344,16 @@ void WarmEngine<Pose>::Impl::Screen(int q, std::vector<int>* changed) {
 
 template <class Pose>
 std::vector<double> WarmEngine<Pose>::Impl::LinkStatistics(const std::vector<int>& links) {
-  if (static_cast<int>(control.size()) < graph->num_edges()) {
-    control.resize(graph->num_edges(), -1.0);
-    linearized.resize(graph->num_edges(), 0.0);
+  if (static_cast<int>(screened.size()) < graph->num_edges()) {
+    LinearizedAddition none;
+    none.redundancy = -1.0;
+    screened.resize(graph->num_edges(), none);
   }
   const std::vector<LinearizedAddition> additions = good.LinearizeEach(links);
   std::vector<double> statistic(links.size());
   for (size_t k = 0; k < links.size(); ++k) {
-    control[links[k]] = additions[k].redundancy;
+    screened[links[k]] = additions[k];
     statistic[k] = additions[k].chi2_increase;
-    linearized[links[k]] = statistic[k];
   }
   return statistic;
 }
@@ -363,12 +363,14 @@ bool WarmEngine<Pose>::Impl::Unsupported(int q) const {
   const JudgedCluster& c = book->clusters[q];
   if (c.links.size() != 1) return false;
   const int e = c.links.front();
-  if (e >= static_cast<int>(control.size()) || !(control[e] >= kMinRedundancy)) return true;
+  if (e >= static_cast<int>(screened.size()) || !(screened[e].redundancy >= kMinRedundancy)) {
+    return true;
+  }
   // A lone link the joint optimum fits although the linearized statistic refuses it bends a loose
   // stretch of the map far from the estimate (Torus3D + 1000 random, seed 7: 4936 -> 2427, 92
   // degrees off, from a tail whose loops were still open; linearized 2.7 times its threshold,
   // under it at the joint optimum). It waits until the map around it is held.
-  return linearized[e] > LinkThreshold();
+  return screened[e].chi2_increase > LinkThreshold();
 }
 
 template <class Pose>
@@ -752,7 +754,7 @@ std::vector<int> WarmEngine<Pose>::Components() const {
 template <class Pose>
 void WarmEngine<Pose>::Restore() {
   Impl& m = *impl_;
-  m.control.clear();
+  m.screened.clear();
   m.good.Rebuild(m.GoodLoops(), m.AlignmentCap());
 }
 

@@ -182,7 +182,7 @@ struct WarmEngine<Pose>::Impl {
   void Screen(int q, std::vector<int>* changed);
 
   // Each link's linearized chi2 increase alone at the current optimum (its ends in one
-  // component); its redundancy number goes to `control`.
+  // component); it and the link's redundancy number go to `screened`.
   std::vector<double> LinkStatistics(const std::vector<int>& links);
 
   // A cluster of one link (none of its own to support it) whose end poses the good set knows far
@@ -395,7 +395,7 @@ struct WarmEngine<Pose>::Impl {
   // at least that of any one of its links alone (more edges cannot lower the optimum's chi2), so
   // a link whose linearized statistic is kClusterMargin times the cluster's threshold rules it
   // out without a nonlinear trial. Clusters between two components are not ruled out here. Like
-  // any screen, it leaves its links' redundancy numbers in `control`.
+  // any screen, it leaves its links' statistics and redundancy numbers in `screened`.
   bool MayPass(int q);
   // The largest linearized statistic of cluster q's links against the good set over the
   // cluster's threshold (0 when its ends lie in two components).
@@ -420,9 +420,10 @@ struct WarmEngine<Pose>::Impl {
   double variance_dof = std::numeric_limits<double>::infinity();
   bool scale_known = false;
   bool released = false;
-  int rejudging = 0;               // Rejudge under way (no challenge starts inside one)
-  std::vector<double> control;     // per loop edge: its redundancy number at its last screen
-  std::vector<double> linearized;  // per loop edge: its linearized statistic there
+  int rejudging = 0;  // Rejudge under way (no challenge starts inside one)
+  // Per loop edge: its linearized statistic and redundancy number at its last screen (redundancy
+  // -1: not screened since the engine was restored).
+  std::vector<LinearizedAddition> screened;
   // The bending runs of ReverseOutvoted's last round, by their links.
   std::map<std::vector<int>, RunJudgement> run_judgements;
 };
