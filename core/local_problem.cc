@@ -194,10 +194,33 @@ LocalSolution LocalProblems<Pose>::Solve(const std::vector<char>& sessions,
     int sub_session = -1;
     IRRR_CHECK(sub.AddSession(static_cast<int64_t>(k_span), &sub_session).ok());
     const std::vector<int>& vertices = graph.session(span.session).vertices;
+    // Right perturbation covariance C of the compounded dead reckoning from position a to b; the
+    // residual (g2o's chart) reads xi = M r, so its information is M' C^-1 M.
+    auto compounded_information = [&](int a, int b) {
+      const typename Pose::Matrix C = chains_->Relative(span.session, a, b);
+      const typename Pose::Matrix information = M.transpose() * C.inverse() * M;
+      return typename Pose::Matrix(0.5 * (information + information.transpose()));
+    };
     std::vector<int> kept;
+    std::vector<typename Pose::Matrix> stretch_information;  // per kept pose, from the previous
     if (compound) {
       for (int k : endpoints[span.session]) {
-        if (k >= span.first && k <= span.last) kept.push_back(k);
+        if (k < span.first || k > span.last) continue;
+        if (!kept.empty() && k > kept.back() + 1) {
+          const typename Pose::Matrix information = compounded_information(kept.back(), k);
+          if (!ValidateInformation<Pose>(information).ok()) {
+            // Odometry of magnitudes whose compounding overflows (or loses definiteness): the
+            // stretch's own poses and edges instead.
+            for (int between = kept.back() + 1; between < k; ++between) {
+              kept.push_back(between);
+              stretch_information.emplace_back();
+            }
+          }
+          stretch_information.push_back(information);
+        } else {
+          stretch_information.emplace_back();
+        }
+        kept.push_back(k);
       }
     } else {
       for (int k = span.first; k <= span.last; ++k) kept.push_back(k);
@@ -214,13 +237,9 @@ LocalSolution LocalProblems<Pose>::Solve(const std::vector<char>& sessions,
         has_odometry = true;
         graph_edge_of_sub.push_back(odometry_edge);
       } else if (j > 0) {
-        // Right perturbation covariance C of the compounded dead reckoning; the residual (g2o's
-        // chart) reads xi = M r, so its information is M' C^-1 M.
         const int u = vertices[kept[j - 1]];
         measurement = (*dead_reckoning_)[u].Inverse() * (*dead_reckoning_)[v];
-        const typename Pose::Matrix C = chains_->Relative(span.session, kept[j - 1], kept[j]);
-        information = M.transpose() * C.inverse() * M;
-        information = 0.5 * (information + information.transpose()).eval();
+        information = stretch_information[j];
         has_odometry = true;
         graph_edge_of_sub.push_back(-1);
       }
