@@ -23,6 +23,11 @@ constexpr size_t kMaxChallengers = 8;
 // Good links or runs that ReverseOutvoted reverses in one step at most (each costs a rebuild of
 // the good set).
 constexpr int kMaxOutvotedPerStep = 8;
+// StrainedBy weighs good clusters of at most this many links (the same cost; the wrong groups it
+// is for are a few links).
+constexpr size_t kMaxStrainedLinks = 20;
+// Times a failed challenge names further suspects (StrainedBy) and is tried again.
+constexpr int kMaxWiderChallenges = 3;
 // A good run whose span holds odometry that fails its link test (BendingRuns) is reversed when its
 // removal statistic is this many times its threshold; a good run is a suspect of runs that failed
 // one by one (ChallengeAsWhole) at this many times too (a true run near a bend stands out as well:
@@ -285,7 +290,55 @@ void WarmEngine<Pose>::Impl::Challenge(const std::vector<int>& suspects,
   if (suspects.size() >= 2 && Replace({suspects.front()}, challengers, components, result)) {
     return;
   }
-  Replace(suspects, challengers, components, result);
+  if (Replace(suspects, challengers, components, result)) return;
+  // What the consistency index names may not be all that bends the map: a wrong group that
+  // fits its own links by bending the odometry stays consistent, and the largest challenger
+  // still fails without the suspects. Those the challenger strains join them.
+  std::vector<int> wider = suspects;
+  for (int round = 0; round < kMaxWiderChallenges; ++round) {
+    const std::vector<int> more = StrainedBy(challengers.front(), wider, components);
+    if (more.empty()) return;
+    wider.insert(wider.end(), more.begin(), more.end());
+    if (Replace(wider, challengers, components, result)) return;
+  }
+}
+
+template <class Pose>
+std::vector<int> WarmEngine<Pose>::Impl::StrainedBy(int challenger,
+                                                    const std::vector<int>& suspects,
+                                                    const std::vector<int>& components) {
+  std::vector<int> base_loops;  // the good set without the suspects
+  std::vector<int> owner;       // its clusters in the components involved
+  std::vector<std::vector<int>> groups;
+  for (int g = 0; g < static_cast<int>(book->clusters.size()); ++g) {
+    const JudgedCluster& c = book->clusters[g];
+    if (!c.in_good || std::find(suspects.begin(), suspects.end(), g) != suspects.end()) continue;
+    base_loops.insert(base_loops.end(), c.links.begin(), c.links.end());
+    // A cluster as large as the challenger cannot be outvoted by it.
+    if (!Within(components, g) || c.links.size() > kMaxStrainedLinks ||
+        c.links.size() >= book->clusters[challenger].links.size()) {
+      continue;
+    }
+    owner.push_back(g);
+    groups.push_back(c.links);
+  }
+  if (groups.empty()) return {};
+  good.RebuildKeeping(base_loops, AlignmentCap());
+  std::vector<std::pair<double, int>> ranked;  // (removal over threshold, good cluster)
+  const std::vector<int>& links = book->clusters[challenger].links;
+  if (good.Try(links, AlignmentCap(), MaxIncrease(links)).ok) {
+    const std::vector<double> removal = good.LinearizeRemovals(groups);
+    good.Rollback();
+    for (size_t k = 0; k < groups.size(); ++k) {
+      const double index = removal[k] / Threshold(d * static_cast<double>(groups[k].size()));
+      if (index >= kBendingRunMargin) ranked.push_back({index, owner[k]});
+    }
+  }
+  good.Restore();
+  std::sort(ranked.rbegin(), ranked.rend());
+  std::vector<int> strained;
+  for (const auto& [unused, g] : ranked) strained.push_back(g);
+  return strained;
 }
 
 template <class Pose>

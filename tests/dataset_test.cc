@@ -456,6 +456,20 @@ TEST_CASE("Torus3D + 1000 random, seed 7: a lone link only a bend can fit waits"
   CheckNoneWrongEveryTrue(run);
 }
 
+// Vertigo's Ring City (2361 poses, 901 true loops) + 1000 wrong loops in groups of 3, seed 9: the
+// true revisit 2048-2083 -> 102-137 (36 links) failed its joint test against two wrong groups
+// accepted before it, 1994-1996 -> 454-456 and 1177-1179 -> 1903-1905. Only the first stood out
+// by its consistency index; without it the revisit still failed (increase 26.0 against 24.0), and
+// 36 true loops stayed out (ATE 22 m against the oracle). At the revisit's trial without the
+// first, the second's removal statistic is 5.4 times its threshold: named too, both leave.
+TEST_CASE("Ring City + 1000 random-grouped, seed 9: a failed challenge names what else bends",
+          "[datasets][irrr]") {
+  const CorruptedRun run = RunCorrupted(
+      "ringCity/vertigo/originalDataset/ringCity.g2o", OutlierMode::kRandomGrouped, 1000, 9);
+  CheckNoneWrongEveryTrue(run);
+  CHECK(Reversals(run.steps) >= 1);
+}
+
 // KITTI 05 (place recognition at alpha 0.5, labelled true loops). The matches along one revisit
 // share their error, so the clusters' own redundancy puts the variance factor at 0.16; the good
 // set's, which also sees how the revisits disagree with each other and with the odometry, at
