@@ -55,6 +55,10 @@ struct JudgedCluster {
   double redundancy_dof = 0.0;
   double accepted_variance = 0.0;
   double refused_variance = 0.0;
+  // Warm engine, good clusters: the good set's links and the variance factor when its runs were
+  // last judged (at its acceptance, then by ReverseOutvoted once the evidence has grown).
+  int checked_links = 0;
+  double checked_variance = 0.0;
 };
 
 // The decisions and clusters of one graph, with the step that changes them.

@@ -509,6 +509,13 @@ void WarmEngine<Pose>::Impl::Accept(int q, std::vector<int>* changed) {
   c.in_reject = false;
   c.in_r = true;
   c.accepted_variance = clusters_variance;
+  MarkChecked(q);
+}
+
+template <class Pose>
+void WarmEngine<Pose>::Impl::MarkChecked(int g) {
+  book->clusters[g].checked_links = GoodLinks();
+  book->clusters[g].checked_variance = variance;
 }
 
 template <class Pose>
@@ -716,6 +723,8 @@ int WarmEngine<Pose>::Impl::SplitOffGood(int g, const std::vector<int>& links) {
   book->clusters[part].in_good = true;
   book->clusters[part].in_r = true;
   book->clusters[part].accepted_variance = accepted_variance;
+  book->clusters[part].checked_links = book->clusters[g].checked_links;
+  book->clusters[part].checked_variance = book->clusters[g].checked_variance;
   return part;
 }
 

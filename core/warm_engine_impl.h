@@ -347,6 +347,18 @@ struct WarmEngine<Pose>::Impl {
   // A run whose last removal statistic was below half its margin is judged again only once its
   // strain or the variance factor has changed, or links have left the good set (RunJudgement).
   void ReverseOutvoted(StepResult* result);
+  // The runs of two links or more of good clusters whose evidence has grown since their runs were
+  // last judged (the good set kEvidenceGrowth times the links, or the variance factor fallen by
+  // kFactorFall), each with its cluster; clusters due with no such run are marked checked. They
+  // are candidates of ReverseOutvoted at kBendingRunMargin. A wrong group accepted early, while
+  // little held the map, fits by bending it; when its strain is spread thinly over many odometry
+  // edges, none fails, and it is no bending run. Ring City + 1000 local-grouped, seed 9 (990-992
+  // -> 940-942, 11 m off, accepted at step 10), CSAIL seed 10 (step 3) and FR079 seed 9 (step 2,
+  // at the factor 0.122, which later fell to 0.061): at the end their removal statistics are 5.3,
+  // 5.6 and 2.9 times their thresholds.
+  std::vector<std::pair<int, std::vector<int>>> DueRuns();
+  // Cluster g's runs are judged as of now (the good set's links and the variance factor).
+  void MarkChecked(int g);
   // A run of a good cluster within one session, accepted before this step, whose span holds
   // odometry edges that fail the link test at the current optimum. Its strain: their d^2 and its
   // own links' at the current optimum, summed.

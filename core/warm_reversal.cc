@@ -23,6 +23,14 @@ constexpr size_t kMaxChallengers = 8;
 // Good links or runs that ReverseOutvoted reverses in one step at most (each costs a rebuild of
 // the good set).
 constexpr int kMaxOutvotedPerStep = 8;
+// A good cluster's runs are judged again (DueRuns) once the good set has this many times the links
+// it had when they were last judged, or the variance factor has fallen by this ratio.
+constexpr int kEvidenceGrowth = 2;
+constexpr double kFactorFall = 1.5;
+// Runs of more links are not judged again so: the removal statistic's cost grows with the cube of
+// a run's end poses (Sphere2500's rings of 196-201 links took 1.7 s each, 47 of a 52 s run), and
+// a wrong group accepted early is a few links (the generator's groups: 3-10).
+constexpr size_t kMaxDueRunLinks = 20;
 // StrainedBy weighs good clusters of at most this many links (the same cost; the wrong groups it
 // is for are a few links).
 constexpr size_t kMaxStrainedLinks = 20;
@@ -104,9 +112,29 @@ void WarmEngine<Pose>::Impl::ReverseOutvoted(StepResult* result) {
                             kBendingRunMargin});
       strains.push_back(run.strain);
     }
+    // The runs of good clusters due to be judged again: groups[first_due] on.
+    const size_t first_due = groups.size();
+    std::vector<int> due_cluster;
+    for (auto& [g, run] : DueRuns()) {
+      groups.push_back(std::move(run));
+      candidates.push_back(
+          {g, Threshold(d * static_cast<double>(groups.back().size())), kBendingRunMargin});
+      due_cluster.push_back(g);
+    }
     const std::vector<double> removal =
         groups.empty() ? std::vector<double>() : good.LinearizeRemovals(groups);
-    for (size_t k = first_run; k < groups.size(); ++k) {
+    // A due cluster none of whose runs reaches its margin is checked until the evidence grows
+    // again.
+    std::map<int, bool> below;
+    for (size_t k = first_due; k < groups.size(); ++k) {
+      const bool passes = removal[k] < candidates[k].margin * candidates[k].threshold;
+      const auto [it, inserted] = below.insert({due_cluster[k - first_due], passes});
+      if (!inserted) it->second = it->second && passes;
+    }
+    for (const auto& [g, passes] : below) {
+      if (passes) MarkChecked(g);
+    }
+    for (size_t k = first_run; k < first_due; ++k) {
       judged[groups[k]] = {
           removal[k] / candidates[k].threshold, strains[k - first_run], variance, rebuilds};
     }
@@ -132,6 +160,28 @@ void WarmEngine<Pose>::Impl::ReverseOutvoted(StepResult* result) {
     Rejudge({part}, result);
     ++result->reversals;
   }
+}
+
+template <class Pose>
+std::vector<std::pair<int, std::vector<int>>> WarmEngine<Pose>::Impl::DueRuns() {
+  std::vector<std::pair<int, std::vector<int>>> due;
+  const int links = GoodLinks();
+  for (int g = 0; g < static_cast<int>(book->clusters.size()); ++g) {
+    const JudgedCluster& c = book->clusters[g];
+    if (!c.in_good || (links < kEvidenceGrowth * c.checked_links &&
+                       kFactorFall * variance >= c.checked_variance)) {
+      continue;
+    }
+    bool any = false;
+    for (std::vector<int>& run : Runs(c.links)) {
+      // Runs' last part holds the lone links.
+      if (run.size() < 2 || run.size() > kMaxDueRunLinks || Lone(run.front(), run)) continue;
+      due.push_back({g, std::move(run)});
+      any = true;
+    }
+    if (!any) MarkChecked(g);
+  }
+  return due;
 }
 
 template <class Pose>
