@@ -124,10 +124,10 @@ void WarmEngine<Pose>::Impl::ReverseOutvoted(StepResult* result) {
     const std::vector<double> removal =
         groups.empty() ? std::vector<double>() : good.LinearizeRemovals(groups);
     // A due cluster none of whose runs reaches its margin is checked until the evidence grows
-    // again.
+    // again (a statistic that came out NaN, the matrix not positive definite, reaches nothing).
     std::map<int, bool> below;
     for (size_t k = first_due; k < groups.size(); ++k) {
-      const bool passes = removal[k] < candidates[k].margin * candidates[k].threshold;
+      const bool passes = !(removal[k] >= candidates[k].margin * candidates[k].threshold);
       const auto [it, inserted] = below.insert({due_cluster[k - first_due], passes});
       if (!inserted) it->second = it->second && passes;
     }
