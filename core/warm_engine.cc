@@ -314,9 +314,8 @@ void WarmEngine<Pose>::Impl::Judge(int k, StepResult* result) {
         continue;
       }
     }
-    HoldUnsupportedLoneLinks(q, changed);
     if (HoldIfUnsupported(q, changed)) continue;
-    book->clusters[q].held = false;
+    c.held = false;
     JointTest(q, result);
   }
 }
@@ -382,28 +381,6 @@ bool WarmEngine<Pose>::Impl::HoldIfUnsupported(int q, std::vector<int>* changed)
   c.held = true;
   book->Set(c.links.front(), LoopState::kPending, 0.0, 0.0, changed);
   return true;
-}
-
-template <class Pose>
-void WarmEngine<Pose>::Impl::HoldUnsupportedLoneLinks(int q, std::vector<int>* changed) {
-  const JudgedCluster& c = book->clusters[q];
-  if (c.links.size() < 2 || good.ComponentOf(c.session_a) != good.ComponentOf(c.session_b)) {
-    return;
-  }
-  std::vector<int> unsupported;
-  for (int e : c.links) {
-    if (!Lone(e, c.links) || e >= static_cast<int>(screened.size())) continue;
-    const LinearizedAddition& last = screened[e];
-    if (!(last.redundancy >= kMinRedundancy) && last.chi2_increase > LinkThreshold()) {
-      unsupported.push_back(e);
-    }
-  }
-  if (unsupported.empty() || unsupported.size() == c.links.size()) return;
-  for (int e : unsupported) {
-    const int part = SplitOff(q, {e});
-    book->clusters[part].in_r = true;
-    HoldIfUnsupported(part, changed);
-  }
 }
 
 template <class Pose>

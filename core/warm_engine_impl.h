@@ -195,16 +195,6 @@ struct WarmEngine<Pose>::Impl {
   // An unsupported cluster waits, as judged by nothing yet, for a good set that can check it.
   bool HoldIfUnsupported(int q, std::vector<int>* changed);
 
-  // The lone links of cluster q (near none of its other links) whose end poses the good set knows
-  // far worse than they measure them (redundancy number below kMinRedundancy) and whose
-  // linearized statistic at the screen is over the link threshold leave it and wait, each a
-  // cluster of one, unless all of its links are such. The others' joint test cannot speak for a
-  // link they do not overlap, and the map bends to fit it: Ring City + 1000 random, seed 10,
-  // 1897 -> 2013 (37 m off, redundancy 0.022, statistic 5.8 against 2.1), accepted with a true
-  // revisit of 26 links (ATE 6.3 m). Not on redundancy alone: FR079's true lone links of low
-  // redundancy agree with the map (statistics 0.01-0.2), and held they lost 6 of 229.
-  void HoldUnsupportedLoneLinks(int q, std::vector<int>* changed);
-
   // The components a cluster touches.
   std::vector<int> ComponentsOf(int q) const {
     const JudgedCluster& c = book->clusters[q];
