@@ -387,7 +387,7 @@ struct WarmEngine<Pose>::Impl {
                  StepResult* result);
 
   // The good clusters (in `components`, not among `suspects`, smaller than `challenger` and of
-  // at most kMaxStrainedLinks links) that `challenger` strains: at its trial on the good set
+  // at most kMaxWeighedLinks links) that `challenger` strains: at its trial on the good set
   // without the suspects, their removal statistic is kBendingRunMargin times their threshold or
   // more; most strained first. Challenge tries them as suspects too (Ring City + 1000
   // random-grouped, seed 9: the true revisit 2048-2083 -> 102-137 failed against two wrong groups

@@ -27,13 +27,11 @@ constexpr int kMaxOutvotedPerStep = 8;
 // it had when they were last judged, or the variance factor has fallen by this ratio.
 constexpr int kEvidenceGrowth = 2;
 constexpr double kFactorFall = 1.5;
-// Runs of more links are not judged again so: the removal statistic's cost grows with the cube of
-// a run's end poses (Sphere2500's rings of 196-201 links took 1.7 s each, 47 of a 52 s run), and
-// a wrong group accepted early is a few links (the generator's groups: 3-10).
-constexpr size_t kMaxDueRunLinks = 20;
-// StrainedBy weighs good clusters of at most this many links (the same cost; the wrong groups it
-// is for are a few links).
-constexpr size_t kMaxStrainedLinks = 20;
+// DueRuns and StrainedBy weigh runs and clusters of at most this many links: the removal
+// statistic's cost grows with the cube of a group's end poses (Sphere2500's rings of 196-201 links
+// took 1.7 s each, 47 of a 52 s run; Intel's clusters of 100 and more tripled a run's time), and
+// the wrong groups they are for are a few links (the generator's groups: 3-10).
+constexpr size_t kMaxWeighedLinks = 20;
 // Times a failed challenge names further suspects (StrainedBy) and is tried again.
 constexpr int kMaxWiderChallenges = 3;
 // A good run whose span holds odometry that fails its link test (BendingRuns) is reversed when its
@@ -175,7 +173,7 @@ std::vector<std::pair<int, std::vector<int>>> WarmEngine<Pose>::Impl::DueRuns() 
     bool any = false;
     for (std::vector<int>& run : Runs(c.links)) {
       // Runs' last part holds the lone links.
-      if (run.size() < 2 || run.size() > kMaxDueRunLinks || Lone(run.front(), run)) continue;
+      if (run.size() < 2 || run.size() > kMaxWeighedLinks || Lone(run.front(), run)) continue;
       due.push_back({g, std::move(run)});
       any = true;
     }
@@ -365,7 +363,7 @@ std::vector<int> WarmEngine<Pose>::Impl::StrainedBy(int challenger,
     if (!c.in_good || std::find(suspects.begin(), suspects.end(), g) != suspects.end()) continue;
     base_loops.insert(base_loops.end(), c.links.begin(), c.links.end());
     // A cluster as large as the challenger cannot be outvoted by it.
-    if (!Within(components, g) || c.links.size() > kMaxStrainedLinks ||
+    if (!Within(components, g) || c.links.size() > kMaxWeighedLinks ||
         c.links.size() >= book->clusters[challenger].links.size()) {
       continue;
     }
