@@ -142,6 +142,41 @@ Status TimeAssociatedGps(const std::string& timestamps_path,
   return Status::Ok();
 }
 
+Status StridedGps(const std::string& gps_path,
+                  int stride,
+                  const PoseGraph<Pose2>& graph,
+                  Reference<Pose2>* reference) {
+  std::ifstream in(gps_path);
+  if (!in) return Status::Error(gps_path + ": cannot open");
+  reference->poses.assign(graph.num_vertices(), Pose2());
+  reference->valid.assign(graph.num_vertices(), 0);
+  int matched = 0;
+  std::string line;
+  int line_number = 0;
+  while (std::getline(in, line)) {
+    ++line_number;
+    std::istringstream tokens(line);
+    std::string tag;
+    if (!(tokens >> tag) || tag != "VERTEX_SE2") continue;
+    int64_t id = 0;
+    double x = 0.0;
+    double y = 0.0;
+    double yaw = 0.0;
+    if (!(tokens >> id >> x >> y >> yaw) || !std::isfinite(x) || !std::isfinite(y) ||
+        !std::isfinite(yaw)) {
+      return Status::Error(fmt::format("{}: line {}: bad vertex", gps_path, line_number));
+    }
+    const int k = graph.FindVertex(id * stride);
+    if (k < 0) continue;
+    reference->poses[k] = Pose2(x, y, yaw);
+    reference->valid[k] = 1;
+    ++matched;
+  }
+  if (matched == 0) return Status::Error(gps_path + ": no fix matches a graph vertex");
+  reference->label = fmt::format("GPS {}/{}", matched, graph.num_vertices());
+  return Status::Ok();
+}
+
 // True loops of a labelled graph: unordered vertex-id pairs. Reports labels matching no loop.
 Status ReadLabels(const std::string& path,
                   const PoseGraph<Pose2>& graph,

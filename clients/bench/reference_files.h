@@ -14,6 +14,8 @@ namespace irrr {
 
 // Bicocca: a graph vertex counts toward the ATE only with a GPS fix this close in time.
 constexpr double kGpsMatchSeconds = 0.5;
+// Bovisa: odometry poses per GPS fix.
+constexpr int kGpsStride = 10;
 
 // The reference trajectory for ATE: one pose per vertex, and which vertices have one.
 template <class Pose>
@@ -44,6 +46,13 @@ Status TimeAssociatedGps(const std::string& timestamps_path,
                          const std::string& gps_path,
                          const PoseGraph<Pose2>& graph,
                          Reference<Pose2>* reference);
+
+// Bovisa: the GPS file's vertex k is graph vertex id `stride` * k (its VERTEX_SE2 lines; the file
+// holds one fix per `stride` odometry poses).
+Status StridedGps(const std::string& gps_path,
+                  int stride,
+                  const PoseGraph<Pose2>& graph,
+                  Reference<Pose2>* reference);
 
 // True loops of a labelled graph: unordered vertex-id pairs. Reports labels matching no loop.
 Status ReadLabels(const std::string& path,
