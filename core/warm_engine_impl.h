@@ -386,25 +386,34 @@ struct WarmEngine<Pose>::Impl {
                  const std::vector<int>& components,
                  StepResult* result);
 
-  // The good clusters (in `components`, not among `suspects`, smaller than `challenger` and of
-  // at most kMaxWeighedLinks links) that `challenger` strains: at its trial on the good set
-  // without the suspects, their removal statistic is kBendingRunMargin times their threshold or
-  // more; most strained first. Challenge tries them as suspects too (Ring City + 1000
-  // random-grouped, seed 9: the true revisit 2048-2083 -> 102-137 failed against two wrong groups
-  // of 3, one of them consistent, its removal statistic 5.4 times its threshold at the revisit's
-  // trial; the next cluster 0.84).
-  std::vector<int> StrainedBy(int challenger,
-                              const std::vector<int>& suspects,
-                              const std::vector<int>& components);
+  // The good clusters a challenger is weighed against: in `components`, not among `suspects`,
+  // smaller than `challenger` and of at most kMaxWeighedLinks links.
+  struct Weighed {
+    std::vector<int> clusters;
+    std::vector<std::vector<int>> links;
+  };
+  Weighed WeighedAgainst(int challenger,
+                         const std::vector<int>& suspects,
+                         const std::vector<int>& components) const;
+  // At the open trial of a challenger on the good set without the suspects: the weighed clusters
+  // it strains, their removal statistic kBendingRunMargin times their threshold or more; most
+  // strained first. Challenge tries them as suspects too (Ring City + 1000 random-grouped, seed
+  // 9: the true revisit 2048-2083 -> 102-137 failed against two wrong groups of 3, one of them
+  // consistent, its removal statistic 5.4 times its threshold at the revisit's trial; the next
+  // cluster 0.84).
+  std::vector<int> MostStrained(const Weighed& weighed);
 
   // From the good set without `suspects`, each challenger (largest first) and then each suspect
   // (most strained by the good set so built first) is added if it passes the joint test. A good set
   // so built with more links replaces the current one (true): suspects left out are reversed,
-  // challengers taken in accepted (the largest consistent set wins).
+  // challengers taken in accepted (the largest consistent set wins). With `strained` given, it
+  // receives what the first challenger strains at its trial there (MostStrained), tried for that
+  // even when it cannot pass (MayPass).
   bool Replace(const std::vector<int>& suspects,
                const std::vector<int>& challengers,
                const std::vector<int>& components,
-               StepResult* result);
+               StepResult* result,
+               std::vector<int>* strained = nullptr);
 
   // Recovering: links refused by the good set's tests, or reversed, since step `since`, while the
   // reversed clusters bent its estimate or outvoted them, are judged again without them: those of

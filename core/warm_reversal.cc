@@ -27,12 +27,12 @@ constexpr int kMaxOutvotedPerStep = 8;
 // it had when they were last judged, or the variance factor has fallen by this ratio.
 constexpr int kEvidenceGrowth = 2;
 constexpr double kFactorFall = 1.5;
-// DueRuns and StrainedBy weigh runs and clusters of at most this many links: the removal
+// DueRuns and MostStrained weigh runs and clusters of at most this many links: the removal
 // statistic's cost grows with the cube of a group's end poses (Sphere2500's rings of 196-201 links
 // took 1.7 s each, 47 of a 52 s run; Intel's clusters of 100 and more tripled a run's time), and
 // the wrong groups they are for are a few links (the generator's groups: 3-10).
 constexpr size_t kMaxWeighedLinks = 20;
-// Times a failed challenge names further suspects (StrainedBy) and is tried again.
+// Times a failed challenge names further suspects (MostStrained) and is tried again.
 constexpr int kMaxWiderChallenges = 3;
 // A good run whose span holds odometry that fails its link test (BendingRuns) is reversed when its
 // removal statistic is this many times its threshold; a good run is a suspect of runs that failed
@@ -338,51 +338,46 @@ void WarmEngine<Pose>::Impl::Challenge(const std::vector<int>& suspects,
   if (suspects.size() >= 2 && Replace({suspects.front()}, challengers, components, result)) {
     return;
   }
-  if (Replace(suspects, challengers, components, result)) return;
+  std::vector<int> strained;
+  if (Replace(suspects, challengers, components, result, &strained)) return;
   // What the consistency index names may not be all that bends the map: a wrong group that
   // fits its own links by bending the odometry stays consistent, and the largest challenger
   // still fails without the suspects. Those the challenger strains join them.
   std::vector<int> wider = suspects;
   for (int round = 0; round < kMaxWiderChallenges; ++round) {
-    const std::vector<int> more = StrainedBy(challengers.front(), wider, components);
-    if (more.empty()) return;
-    wider.insert(wider.end(), more.begin(), more.end());
-    if (Replace(wider, challengers, components, result)) return;
+    if (strained.empty()) return;
+    wider.insert(wider.end(), strained.begin(), strained.end());
+    if (Replace(wider, challengers, components, result, &strained)) return;
   }
 }
 
 template <class Pose>
-std::vector<int> WarmEngine<Pose>::Impl::StrainedBy(int challenger,
-                                                    const std::vector<int>& suspects,
-                                                    const std::vector<int>& components) {
-  std::vector<int> base_loops;  // the good set without the suspects
-  std::vector<int> owner;       // its clusters in the components involved
-  std::vector<std::vector<int>> groups;
+typename WarmEngine<Pose>::Impl::Weighed WarmEngine<Pose>::Impl::WeighedAgainst(
+    int challenger, const std::vector<int>& suspects, const std::vector<int>& components) const {
+  Weighed weighed;
   for (int g = 0; g < static_cast<int>(book->clusters.size()); ++g) {
     const JudgedCluster& c = book->clusters[g];
     if (!c.in_good || std::find(suspects.begin(), suspects.end(), g) != suspects.end()) continue;
-    base_loops.insert(base_loops.end(), c.links.begin(), c.links.end());
     // A cluster as large as the challenger cannot be outvoted by it.
     if (!Within(components, g) || c.links.size() > kMaxWeighedLinks ||
         c.links.size() >= book->clusters[challenger].links.size()) {
       continue;
     }
-    owner.push_back(g);
-    groups.push_back(c.links);
+    weighed.clusters.push_back(g);
+    weighed.links.push_back(c.links);
   }
-  if (groups.empty()) return {};
-  good.RebuildKeeping(base_loops, AlignmentCap());
+  return weighed;
+}
+
+template <class Pose>
+std::vector<int> WarmEngine<Pose>::Impl::MostStrained(const Weighed& weighed) {
+  if (weighed.clusters.empty()) return {};
+  const std::vector<double> removal = good.LinearizeRemovals(weighed.links);
   std::vector<std::pair<double, int>> ranked;  // (removal over threshold, good cluster)
-  const std::vector<int>& links = book->clusters[challenger].links;
-  if (good.Try(links, AlignmentCap(), MaxIncrease(links)).ok) {
-    const std::vector<double> removal = good.LinearizeRemovals(groups);
-    good.Rollback();
-    for (size_t k = 0; k < groups.size(); ++k) {
-      const double index = removal[k] / Threshold(d * static_cast<double>(groups[k].size()));
-      if (index >= kBendingRunMargin) ranked.push_back({index, owner[k]});
-    }
+  for (size_t k = 0; k < weighed.links.size(); ++k) {
+    const double index = removal[k] / Threshold(d * static_cast<double>(weighed.links[k].size()));
+    if (index >= kBendingRunMargin) ranked.push_back({index, weighed.clusters[k]});
   }
-  good.Restore();
   std::sort(ranked.rbegin(), ranked.rend());
   std::vector<int> strained;
   for (const auto& [unused, g] : ranked) strained.push_back(g);
@@ -455,7 +450,8 @@ template <class Pose>
 bool WarmEngine<Pose>::Impl::Replace(const std::vector<int>& suspects,
                                      const std::vector<int>& challengers,
                                      const std::vector<int>& components,
-                                     StepResult* result) {
+                                     StepResult* result,
+                                     std::vector<int>* strained) {
   size_t good_links = 0;        // of the good set now, in the components involved
   size_t base_links = 0;        // of the good set being built, there
   std::vector<int> base_loops;  // the good set without the suspects
@@ -470,9 +466,15 @@ bool WarmEngine<Pose>::Impl::Replace(const std::vector<int>& suspects,
   }
   good.RebuildKeeping(base_loops, AlignmentCap());
   std::vector<int> taken;
+  // What the first challenger strains, at its trial (open if `ok`).
+  auto weigh = [&](int q, bool ok) {
+    if (strained == nullptr || q != challengers.front()) return;
+    *strained = ok ? MostStrained(WeighedAgainst(q, suspects, components)) : std::vector<int>();
+  };
   auto take_if_passes = [&](int q) {
     const std::vector<int>& links = book->clusters[q].links;
     const typename GoodSet<Pose>::Trial trial = good.Try(links, AlignmentCap(), MaxIncrease(links));
+    weigh(q, trial.ok);
     if (!trial.ok) return;
     if (!IncreasePasses(trial) || !Consistent(q)) {
       good.Rollback();
@@ -483,21 +485,29 @@ bool WarmEngine<Pose>::Impl::Replace(const std::vector<int>& suspects,
     base_links += book->clusters[q].links.size();
   };
   for (int r : challengers) {
-    if (MayPass(r)) take_if_passes(r);
+    if (MayPass(r)) {
+      take_if_passes(r);
+    } else if (strained != nullptr && r == challengers.front()) {
+      // It cannot pass, but what it strains is asked for: its trial, rolled back.
+      const std::vector<int>& links = book->clusters[r].links;
+      const bool ok = good.Try(links, AlignmentCap(), MaxIncrease(links)).ok;
+      weigh(r, ok);
+      if (ok) good.Rollback();
+    }
   }
   // Without a challenger taken, the suspects taken back cannot make the good set larger. They are
   // tried back most strained first by the good set so built (the order given breaks ties): one
   // that a challenger taken conflicts with fails first, and the attempt ends as soon as it cannot
   // make the good set larger.
   if (!taken.empty()) {
-    std::vector<std::pair<double, int>> strained;  // (-strain, suspect)
-    for (int g : suspects) strained.push_back({-Strain(g), g});
-    std::stable_sort(strained.begin(), strained.end(), [](const auto& a, const auto& b) {
+    std::vector<std::pair<double, int>> by_strain;  // (-strain, suspect)
+    for (int g : suspects) by_strain.push_back({-Strain(g), g});
+    std::stable_sort(by_strain.begin(), by_strain.end(), [](const auto& a, const auto& b) {
       return a.first < b.first;
     });
     size_t untried = 0;  // links of the suspects not tried back yet
     for (int g : suspects) untried += book->clusters[g].links.size();
-    for (const auto& [unused, g] : strained) {
+    for (const auto& [unused, g] : by_strain) {
       // Once even all the suspects left cannot make the good set larger, it stays as it was.
       if (base_links + untried <= good_links) break;
       untried -= book->clusters[g].links.size();
@@ -590,8 +600,11 @@ void WarmEngine<Pose>::Impl::Recover(int since,
       const std::vector<int>&, const std::vector<int>&, StepResult*);                            \
   template void WarmEngine<Pose>::Impl::Challenge(                                               \
       const std::vector<int>&, const std::vector<int>&, StepResult*);                            \
-  template bool WarmEngine<Pose>::Impl::Replace(                                                 \
-      const std::vector<int>&, const std::vector<int>&, const std::vector<int>&, StepResult*);   \
+  template bool WarmEngine<Pose>::Impl::Replace(const std::vector<int>&,                         \
+                                                const std::vector<int>&,                         \
+                                                const std::vector<int>&,                         \
+                                                StepResult*,                                     \
+                                                std::vector<int>*);                              \
   template bool WarmEngine<Pose>::Impl::MayPass(int);                                            \
   template double WarmEngine<Pose>::Impl::Strain(int) const;                                     \
   template void WarmEngine<Pose>::Impl::Recover(                                                 \
