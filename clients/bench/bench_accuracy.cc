@@ -10,8 +10,8 @@
 // Manhattan, Intel, City10000 and Sphere2500; the RRR author's KITTI 00 / 05 place-recognition
 // graphs at five alpha levels (per-file labels); Bicocca 25b at five alpha levels (no labels; ATE
 // against GPS associated by time); Bovisa 04 and 06 (no labels; ATE against one GPS fix per 10
-// poses). Each row goes to stdout as soon as it is done; --output writes
-// a complete Markdown document (rewritten after every row, so an interrupted run keeps its rows).
+// poses). Each row goes to stdout as soon as it is done; --output writes a complete Markdown
+// document (rewritten after every row, so an interrupted run keeps its rows).
 
 #include <sched.h>
 #include <sysexits.h>
