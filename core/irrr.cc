@@ -293,12 +293,14 @@ Status Irrr<Pose>::RestoreStepState(IrrrStepState<Pose> state) {
     for (double v : {cluster.redundancy_chi2,
                      cluster.redundancy_dof,
                      cluster.accepted_variance,
-                     cluster.refused_variance}) {
+                     cluster.refused_variance,
+                     cluster.checked_variance}) {
       if (!(v >= 0.0) || !std::isfinite(v)) {
         return Status::Error(
             "a cluster's redundancy or variance factor is not a finite number >= 0");
       }
     }
+    if (cluster.checked_links < 0) return Status::Error("a cluster's checked link count is < 0");
   }
   st.book.decisions = std::move(state.decisions);
   st.book.clusters = std::move(state.clusters);

@@ -12,7 +12,7 @@
 namespace irrr {
 namespace {
 
-constexpr char kMagic[8] = {'I', 'R', 'R', 'R', 'S', 'N', 'P', '3'};
+constexpr char kMagic[8] = {'I', 'R', 'R', 'R', 'S', 'N', 'P', '4'};
 constexpr size_t kHeader = sizeof kMagic + 8;  // magic, length, CRC
 constexpr uint32_t kMaxBody = 1u << 31;
 
@@ -109,6 +109,8 @@ void SnapshotWriter::StepState(const IrrrStepState<Pose>& state) {
     F64(c.redundancy_dof);
     F64(c.accepted_variance);
     F64(c.refused_variance);
+    I64(c.checked_links);
+    F64(c.checked_variance);
   }
   Ints(state.cluster_of);
   I64(state.steps);
@@ -215,13 +217,14 @@ bool SnapshotReader::StepState(IrrrStepState<Pose>* state) {
   for (Pose& pose : state->estimate) {
     if (!PoseValue(&pose)) return false;
   }
-  if (!Count(10 * 8, &n)) return false;
+  if (!Count(12 * 8, &n)) return false;
   state->clusters.resize(n);
   for (auto& c : state->clusters) {
     int64_t flags = 0;
     if (!Ints(&c.links) || !Int(&c.session_a) || !Int(&c.session_b) || !I64(&flags) ||
         !Ints(&c.opponents) || !F64(&c.redundancy_chi2) || !F64(&c.redundancy_dof) ||
-        !F64(&c.accepted_variance) || !F64(&c.refused_variance)) {
+        !F64(&c.accepted_variance) || !F64(&c.refused_variance) || !Int(&c.checked_links) ||
+        !F64(&c.checked_variance)) {
       return false;
     }
     c.closed = (flags & 8) != 0;
@@ -284,7 +287,7 @@ Status ReadSnapshotFile(const std::string& path, std::vector<uint8_t>* body, boo
   }
   close(fd);
   if (data.size() < kHeader || std::memcmp(data.data(), kMagic, sizeof kMagic) != 0) {
-    return Status::Error(path + ": not an irrrd snapshot (it does not start with IRRRSNP3)");
+    return Status::Error(path + ": not an irrrd snapshot (it does not start with IRRRSNP4)");
   }
   const uint32_t length = GetU32(&data[sizeof kMagic]);
   const uint32_t crc = GetU32(&data[sizeof kMagic + 4]);

@@ -271,13 +271,15 @@ TEMPLATE_TEST_CASE(
   run_steps(&restored);
   CheckSameIrrr(original, restored, tolerance);
   // The case exercises what the state must carry: decisions that are not just acceptances;
-  // the redundancy, acceptance and refusal variance factors (warm engine).
+  // the redundancy, acceptance, refusal and last-judged variance factors (warm engine).
   const IrrrStepState<TestType> state = original.StepState();
   if (options.engine == IrrrEngine::kWarm) {
     int with_redundancy = 0;
     int accepted_at = 0;
     int refused_at = 0;
+    int checked_at = 0;
     for (const auto& cluster : state.clusters) {
+      checked_at += cluster.checked_links > 0 && cluster.checked_variance > 0.0 ? 1 : 0;
       with_redundancy += cluster.redundancy_dof > 0.0 ? 1 : 0;
       accepted_at += cluster.accepted_variance > 0.0 ? 1 : 0;
       refused_at += cluster.refused_variance > 0.0 ? 1 : 0;
@@ -285,6 +287,7 @@ TEMPLATE_TEST_CASE(
     CHECK(with_redundancy > 0);
     CHECK(accepted_at > 0);
     CHECK(refused_at > 0);
+    CHECK(checked_at > 0);
   }
   int rejected = 0;
   for (const LoopDecision& d : state.decisions) {
@@ -323,6 +326,9 @@ TEST_CASE("A step state that does not fit the Irrr is refused and changes nothin
   CHECK(refused(bad));
   bad = good;
   bad.clusters[0].session_b = 99;
+  CHECK(refused(bad));
+  bad = good;
+  bad.clusters[0].checked_links = -1;
   CHECK(refused(bad));
   bad = good;
   bad.estimate[0] = Pose2(std::nan(""), 0.0, 0.0);

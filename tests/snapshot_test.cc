@@ -63,6 +63,8 @@ TEST_CASE("A snapshot body reads back as written, and any cut of it is refused",
   state.clusters[0].redundancy_chi2 = 3.5;
   state.clusters[0].redundancy_dof = 6.0;
   state.clusters[0].accepted_variance = 0.16;
+  state.clusters[0].checked_links = 42;
+  state.clusters[0].checked_variance = 0.18;
   state.clusters[1].opponents = {0};
   state.clusters[1].in_reject = true;
   state.clusters[1].refused_variance = 0.27;
@@ -93,6 +95,7 @@ TEST_CASE("A snapshot body reads back as written, and any cut of it is refused",
   CHECK(back.clusters[1].opponents == std::vector<int>{0});
   CHECK((back.clusters[0].redundancy_chi2 == 3.5 && back.clusters[0].redundancy_dof == 6.0));
   CHECK(back.clusters[0].accepted_variance == 0.16);
+  CHECK((back.clusters[0].checked_links == 42 && back.clusters[0].checked_variance == 0.18));
   CHECK(back.clusters[0].refused_variance == 0.0);
   CHECK(back.clusters[1].refused_variance == 0.27);
   CHECK((back.steps == 7 && back.judged == 2 && back.cluster_of == state.cluster_of));
