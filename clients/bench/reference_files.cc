@@ -10,6 +10,8 @@
 #include <fmt/core.h>
 #include <Eigen/Geometry>
 
+#include "clients/common/graph_files.h"
+
 namespace irrr {
 
 // Parses iSAM text edges ("EDGE2 i j x y yaw" + 6 sqrt-information entries, "EDGE3 i j x y z roll
@@ -146,30 +148,21 @@ Status StridedGps(const std::string& gps_path,
                   int stride,
                   const PoseGraph<Pose2>& graph,
                   Reference<Pose2>* reference) {
-  std::ifstream in(gps_path);
-  if (!in) return Status::Error(gps_path + ": cannot open");
+  GraphFile<Pose2> file;
+  PoseGraph<Pose2> gps;
+  std::vector<int> unused;
+  if (Status s = LoadPoseGraph(gps_path, FileFormat::kG2o, ReadOptions(), &file, &gps, &unused);
+      !s.ok()) {
+    return s;
+  }
   reference->poses.assign(graph.num_vertices(), Pose2());
   reference->valid.assign(graph.num_vertices(), 0);
   int matched = 0;
-  std::string line;
-  int line_number = 0;
-  while (std::getline(in, line)) {
-    ++line_number;
-    std::istringstream tokens(line);
-    std::string tag;
-    if (!(tokens >> tag) || tag != "VERTEX_SE2") continue;
-    int64_t id = 0;
-    double x = 0.0;
-    double y = 0.0;
-    double yaw = 0.0;
-    if (!(tokens >> id >> x >> y >> yaw) || !std::isfinite(x) || !std::isfinite(y) ||
-        !std::isfinite(yaw)) {
-      return Status::Error(fmt::format("{}: line {}: bad vertex", gps_path, line_number));
-    }
-    const int k = graph.FindVertex(id * stride);
-    if (k < 0) continue;
-    reference->poses[k] = Pose2(x, y, yaw);
-    reference->valid[k] = 1;
+  for (int k = 0; k < gps.num_vertices(); ++k) {
+    const int v = graph.FindVertex(gps.vertex(k).id * stride);
+    if (v < 0) continue;
+    reference->poses[v] = gps.initial_estimate()[k];
+    reference->valid[v] = 1;
     ++matched;
   }
   if (matched == 0) return Status::Error(gps_path + ": no fix matches a graph vertex");

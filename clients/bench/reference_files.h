@@ -2,7 +2,7 @@
 #define IRRR_CLIENTS_BENCH_REFERENCE_FILES_H_
 
 // The accuracy benchmark's reference files: ground truth as iSAM edge chains, Bicocca's GPS
-// associated by time, and the labels of true loops.
+// associated by time, Bovisa's by vertex id, and the labels of true loops.
 
 #include <string>
 #include <vector>
@@ -47,8 +47,8 @@ Status TimeAssociatedGps(const std::string& timestamps_path,
                          const PoseGraph<Pose2>& graph,
                          Reference<Pose2>* reference);
 
-// Bovisa: the GPS file's vertex k is graph vertex id `stride` * k (its VERTEX_SE2 lines; the file
-// holds one fix per `stride` odometry poses).
+// Bovisa: the GPS file (a g2o graph) holds one fix per `stride` odometry poses: its vertex k is
+// graph vertex id `stride` * k.
 Status StridedGps(const std::string& gps_path,
                   int stride,
                   const PoseGraph<Pose2>& graph,
