@@ -34,6 +34,10 @@ constexpr double kUpdateCostRatio = 2.0;
 // more than kRiseTolerance (relative): Gauss-Newton's full steps going astray.
 constexpr int kMaxRises = 3;
 constexpr double kRiseTolerance = 1e-6;
+// A factorization that finds no positive pivot is tried again with H's diagonal raised by this
+// much (relative), then by 100 times more each time, up to kMaxRetryDamping (Rebuild).
+constexpr double kRetryDamping = 1e-10;
+constexpr double kMaxRetryDamping = 1e-4;
 
 }  // namespace incremental_internal
 
@@ -45,6 +49,8 @@ struct IncrementalSolver<Pose>::Impl {
   static constexpr double kUpdateCostRatio = incremental_internal::kUpdateCostRatio;
   static constexpr int kMaxRises = incremental_internal::kMaxRises;
   static constexpr double kRiseTolerance = incremental_internal::kRiseTolerance;
+  static constexpr double kRetryDamping = incremental_internal::kRetryDamping;
+  static constexpr double kMaxRetryDamping = incremental_internal::kMaxRetryDamping;
 
   static constexpr int d = Pose::kDim;
   using Tangent = typename Pose::Tangent;
@@ -234,6 +240,18 @@ struct IncrementalSolver<Pose>::Impl {
     return false;
   }
 
+  // Multiplies the diagonal of the upper triangle A by 1 + `relative`.
+  static void RaiseDiagonal(cholmod_sparse* A, double relative) {
+    const int* Ap = static_cast<const int*>(A->p);
+    const int* Ai = static_cast<const int*>(A->i);
+    double* Ax = static_cast<double*>(A->x);
+    for (size_t j = 0; j < A->ncol; ++j) {
+      for (int p = Ap[j]; p < Ap[j + 1]; ++p) {
+        if (Ai[p] == static_cast<int>(j)) Ax[p] *= 1.0 + relative;
+      }
+    }
+  }
+
   double FactorNonzeros() const {
     const int* nz = static_cast<const int*>(factor->nz);
     double total = 0.0;
@@ -382,6 +400,21 @@ struct IncrementalSolver<Pose>::Impl {
     }
     bool ok =
         factor != nullptr && cholmod_factorize(A, factor, &common) && common.status == CHOLMOD_OK;
+    // H is positive definite in exact arithmetic, but rounding can leave an ill-conditioned one
+    // without a positive pivot (the parking garage + 1000 local wrong loops, seed 11, 845 poses:
+    // the factor was left supernodal and the next covariance read out of bounds). Its diagonal
+    // is then raised by a relative 1e-10, and by 100 times more while that does not suffice, as
+    // Levenberg-Marquardt's damping would: the step changes by as little.
+    double damping = kRetryDamping;
+    while (!ok && factor != nullptr && symbolic != nullptr && common.status == CHOLMOD_NOT_POSDEF &&
+           damping <= kMaxRetryDamping) {
+      RaiseDiagonal(A, damping);
+      damping *= 100.0;
+      FreeFactor();
+      factor = cholmod_copy_factor(symbolic, &common);
+      ok =
+          factor != nullptr && cholmod_factorize(A, factor, &common) && common.status == CHOLMOD_OK;
+    }
     cholmod_free_sparse(&A, &common);
     if (ok && factor->is_super) {
       ok = cholmod_change_factor(CHOLMOD_REAL, false, false, true, true, factor, &common) &&
