@@ -408,6 +408,19 @@ TEST_CASE("Ring + 100 random, seed 7: a wrong link that bends the odometry leave
   CHECK(LargestFactorDecidedAt(run.steps) < 0.5);
 }
 
+// The same ring + 1000 random wrong loops, seed 11: eq. 6 chains wrong links into clusters whose
+// samples, cleaned, still stood at 32 to 222 times the information as given; the factor became
+// known at 1 and a wrong link (418 -> 249) went in with the true revisit. Samples above their
+// threshold at the information as given are not noise and give none: the first clean one says
+// 0.13, and the revisit is judged there.
+TEST_CASE("Ring + 1000 random, seed 11: a sample that fails at the information as given is none",
+          "[datasets][irrr]") {
+  const CorruptedRun run =
+      RunCorrupted("ring/vertigo/originalDataset/ring.g2o", OutlierMode::kRandom, 1000, 11);
+  CheckNoneWrongEveryTrue(run);
+  CHECK(LargestFactorDecidedAt(run.steps) < 0.5);
+}
+
 // FRH (Freiburg hospital, Carlone's TORO file) is exact to its file's 4-6 decimals: its redundancy
 // says a variance factor of 1.7e-8, and at that factor the rounding of a loop's numbers failed the
 // tests (80 of 1505 true loops refused, with or without wrong ones). The factor stops at 1e-6.
@@ -422,22 +435,25 @@ TEST_CASE("FRH, exact to its file's decimals: every true loop accepted at the fa
 }
 
 // CSAIL (128 true loops) + 1000 local wrong loops in groups of 3, seeds 7 and 8: the first
-// cluster to carry 30 degrees of freedom mixes true links and wrong groups and puts the factor
-// above 1, so the first steps test at the information as given and let wrong groups in (6 and 3).
-// With seed 7 the clusters' median then falls to 0.12, but the good set's factor, raised by those
-// groups, stayed at 0.29 (0.50 with seed 8) while it was used whole; at most twice the clusters',
-// it lets them be judged at the lower factor and reversed (CSAIL's other runs: 0.074-0.12).
-TEST_CASE("CSAIL + 1000 local-grouped: what got in at the factor 1 leaves once it falls",
+// cluster to carry 30 degrees of freedom mixes true links and wrong groups, and its sample stood
+// at 3.4 after cleaning. It made the factor known at 1, and the first steps let wrong groups in
+// (6 and 3), reversed only once the clusters' median fell (to 0.12) and the good set's factor,
+// which those groups raised, was capped at twice it. A sample above its threshold at the
+// information as given gives none now: the factor stays at or below 0.48 (seed 7: 6 reversals on
+// the way, 127 of 128 true loops at the end) and 0.069 (seed 8: 128 of 128).
+TEST_CASE("CSAIL + 1000 local-grouped: a first cluster that mixes in wrong groups gives no factor",
           "[datasets][irrr]") {
   for (int seed : {7, 8}) {
     INFO("seed " << seed);
     const CorruptedRun run =
         RunCorrupted("csail/sesync/CSAIL.g2o", OutlierMode::kLocalGrouped, 1000, seed);
     INFO(run.accepted_true << " of " << run.true_loops << " true loops accepted");
+    INFO("largest factor decided at " << LargestFactorDecidedAt(run.steps) << ", reversals "
+                                      << Reversals(run.steps) << ", last factor "
+                                      << run.steps.back().variance_factor);
     CHECK(run.accepted_wrong == 0);
     CHECK(run.accepted_true >= 0.97 * run.true_loops);
-    CHECK(LargestFactorDecidedAt(run.steps) == Approx(1.0));
-    CHECK(Reversals(run.steps) >= 1);
+    CHECK(LargestFactorDecidedAt(run.steps) < 0.6);
     CHECK(run.steps.back().variance_factor < 0.15);
   }
 }
