@@ -413,7 +413,7 @@ TEST_CASE("Ring + 100 random, seed 7: a wrong link that bends the odometry leave
 // known at 1 and a wrong link (418 -> 249) went in with the true revisit. Samples above their
 // threshold at the information as given are not noise and give none: the first clean one says
 // 0.13, and the revisit is judged there.
-TEST_CASE("Ring + 1000 random, seed 11: a sample that fails at the information as given is none",
+TEST_CASE("Ring + 1000 random, seed 11: a sample failing at the information as given gives none",
           "[datasets][irrr]") {
   const CorruptedRun run =
       RunCorrupted("ring/vertigo/originalDataset/ring.g2o", OutlierMode::kRandom, 1000, 11);
