@@ -449,8 +449,10 @@ struct IncrementalSolver<Pose>::Impl {
             CHOLMOD_A, factor, &rhs, nullptr, &solution, nullptr, &work_y, &work_e, &common)) {
       return false;
     }
-    delta = Eigen::Map<const Eigen::VectorXd>(static_cast<const double*>(solution->x), n);
-    if (!delta.allFinite()) return false;
+    // A solution that is not finite leaves delta as it was: Extend reads it.
+    const Eigen::Map<const Eigen::VectorXd> solved(static_cast<const double*>(solution->x), n);
+    if (!solved.allFinite()) return false;
+    delta = solved;
     const int used = static_cast<int>(vertex_of_slot.size());
     for (int s = 0; s < used; ++s) x[s] = x_lin[s].Retract(delta.segment<d>(s * d));
     return true;
@@ -547,6 +549,7 @@ struct IncrementalSolver<Pose>::Impl {
     double previous = std::numeric_limits<double>::infinity();
     int rises = 0;
     bool batch_solved = false;
+    std::vector<Pose> batch_estimate;
     const int max_iterations = trial_active ? options.trial_max_iterations : options.max_iterations;
     for (int iteration = 0; iteration < max_iterations; ++iteration) {
       if (rebuild_due && !Rebuild(false)) return Failed(summary, "factorization failed (rebuild)");
@@ -583,11 +586,24 @@ struct IncrementalSolver<Pose>::Impl {
           rises >= kMaxRises ||
           iteration + 2 >= (trial_active && !batch_solved ? max_iterations / 2 : max_iterations);
       if (unsettled && trial_active && batch_solved) return Failed(summary, "did not converge");
-      if (unsettled && !batch_solved) {
+      if (unsettled && batch_solved) {
+        // Gauss-Newton's full steps went astray again from the batch solve's estimate, which
+        // never raised D^2: that estimate stands. (The parking garage + 1000 local-grouped wrong
+        // loops, seed 11: after a reversal they went on to a chi2 of 1e25, then to NaN.)
+        std::copy(batch_estimate.begin(), batch_estimate.end(), x.begin());
+        if (!Rebuild(false)) return Failed(summary, "factorization failed (rebuild)");
+        summary.ok = true;
+        summary.chi2 = ModelChi2();
+        summary.message = "unsettled after the batch solve: its estimate kept";
+        NoteSettled();
+        return summary;
+      }
+      if (unsettled) {
         batch_solved = true;
         bool out_of_reach = false;
         if (!BatchSolve(start, &out_of_reach)) return Failed(summary, "the batch solve failed");
         if (out_of_reach) return Failed(summary, "the trial's target chi2 is out of reach");
+        batch_estimate.assign(x.begin(), x.begin() + used);
         if (!Rebuild(false)) return Failed(summary, "factorization failed (rebuild)");
       } else if (large) {
         if (!Rebuild(false)) return Failed(summary, "factorization failed (rebuild)");
