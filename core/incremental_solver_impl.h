@@ -589,7 +589,7 @@ struct IncrementalSolver<Pose>::Impl {
       if (unsettled && batch_solved) {
         // Gauss-Newton's full steps went astray again from the batch solve's estimate, which
         // never raised D^2: that estimate stands. (The parking garage + 1000 local-grouped wrong
-        // loops, seed 11: after a reversal they went on to a chi2 of 1e25, then to NaN.)
+        // loops, seed 11: after a reversal they went on to a chi2 of 4e25, then to NaN.)
         std::copy(batch_estimate.begin(), batch_estimate.end(), x.begin());
         if (!Rebuild(false)) return Failed(summary, "factorization failed (rebuild)");
         summary.ok = true;
