@@ -572,12 +572,7 @@ struct IncrementalSolver<Pose>::Impl {
       std::sort(moved_edge_list.begin(), moved_edge_list.end());
       moved_edge_list.erase(std::unique(moved_edge_list.begin(), moved_edge_list.end()),
                             moved_edge_list.end());
-      if (moved.empty() || ModelHolds(moved_edge_list)) {
-        summary.ok = true;
-        summary.chi2 = chi2;
-        NoteSettled();
-        return summary;
-      }
+      if (moved.empty() || ModelHolds(moved_edge_list)) return Settled(summary, chi2, "");
       summary.relinearized += static_cast<int>(moved.size());
       const bool large = CheaperToRebuild(moved_edge_list, 2);
       // Unsettled: rising, or running out of iterations (a trial gets a batch solve half way and
@@ -592,11 +587,7 @@ struct IncrementalSolver<Pose>::Impl {
         // loops, seed 11: after a reversal they went on to a chi2 of 4e25, then to NaN.)
         std::copy(batch_estimate.begin(), batch_estimate.end(), x.begin());
         if (!Rebuild(false)) return Failed(summary, "factorization failed (rebuild)");
-        summary.ok = true;
-        summary.chi2 = ModelChi2();
-        summary.message = "unsettled after the batch solve: its estimate kept";
-        NoteSettled();
-        return summary;
+        return Settled(summary, ModelChi2(), "unsettled after the batch solve: its estimate kept");
       }
       if (unsettled) {
         batch_solved = true;
@@ -612,11 +603,7 @@ struct IncrementalSolver<Pose>::Impl {
         if (!Rebuild(false)) return Failed(summary, "factorization failed (rebuild)");
       }
     }
-    summary.ok = true;
-    summary.chi2 = ModelChi2();
-    summary.message = "stopped at max_iterations";
-    NoteSettled();
-    return summary;
+    return Settled(summary, ModelChi2(), "stopped at max_iterations");
   }
 
   // x = the optimum of the problem by Optimizer, from `start` or the current x, whichever has the
@@ -649,6 +636,16 @@ struct IncrementalSolver<Pose>::Impl {
     *out_of_reach = summary.termination == TerminationType::kOutOfReach;
     for (int s = 0; s < used; ++s) x[s] = poses[vertex_of_slot[s]];
     return true;
+  }
+
+  IncrementalSummary& Settled(IncrementalSummary& summary,
+                              double chi2,
+                              const std::string& message) {
+    summary.ok = true;
+    summary.chi2 = chi2;
+    summary.message = message;
+    NoteSettled();
+    return summary;
   }
 
   IncrementalSummary& Failed(IncrementalSummary& summary, const std::string& message) {

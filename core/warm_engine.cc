@@ -40,10 +40,10 @@ constexpr int kCalibrationRounds = 6;
 // scale by this ratio.
 constexpr int kConcentrationSteps = 5;
 constexpr double kConcentrationRatio = 0.5;
-// A cluster's sample this many times the pairwise scale its set was chosen at is contaminated
-// (Calibrate). On five matrix runs' clusters (Manhattan, Intel, KITTI 05) the ratio stayed below
-// 4.4 but for one, 14 (a cluster of wrong groups); on the parking garage + 1000 local the first
-// clusters stood at 22 and 31.
+// A cluster's sample this many times its pairwise scale (the median over all its pairs, at which
+// its first set is chosen) is contaminated (Calibrate). On five matrix runs' clusters (Manhattan,
+// Intel, KITTI 05) the ratio stayed below 4.4 but for one, 14 (a cluster of wrong groups); on the
+// parking garage + 1000 local the first clusters stood at 22 and 31.
 constexpr double kContaminationRatio = 10.0;
 // Links of a cluster whose ends lie within this many poses of another's ends form one run (a
 // place recognizer's matches along a revisit, or a group of wrong ones): a cluster that fails the
@@ -152,7 +152,7 @@ void WarmEngine<Pose>::Impl::Calibrate(int q) {
     if (round + 1 == rounds) break;  // what follows only prepares the next round's sample
     // A sample above 1 says the set holds links the rest disagrees with (or over-confident
     // information, which the data cannot tell apart, and which is never used above 1). So does
-    // one far above the scale its links were chosen at: pairwise consistent by bending loose
+    // one far above the cluster's pairwise scale: links pairwise consistent by bending loose
     // odometry, not as the noise would have it (the parking garage + 1000 local: the first
     // cluster's set, 18 wrong links of 76 chosen at 0.020, said 0.64; its true links agree at
     // 2.5e-5).

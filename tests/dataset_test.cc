@@ -463,9 +463,9 @@ TEST_CASE("CSAIL + 1000 local-grouped: a first cluster that mixes in wrong group
 // (seed 11) they outnumber the true loops of the first revisits: the first cluster's set, chosen
 // consistent at its pairs' scale 0.020, held 18 wrong links of 76 and said 0.64. Being below 1 it
 // was taken as clean, the factor was known at 0.44, and 158 wrong loops went in (recall 0.26,
-// 510 s). A sample ten times the scale its set was chosen at is cleaned like one above 1: the
-// factor is 2.5e-5 from the first step. The clean file itself loses 6% of its true loops, whose
-// residuals stand 2 to 30 times the rest's (BENCHMARKS.md); here as many. About 50 s.
+// 510 s). A sample ten times its cluster's pairwise scale is cleaned like one above 1: the factor
+// is 2.5e-5 from the first step. The clean file itself loses 6% of its true loops, whose d^2
+// stand 2 to 30 times their thresholds (BENCHMARKS.md); here as many. About 50-70 s.
 TEST_CASE(
     "Parking garage + 1000 local, seed 11: a sample far above its set's pairwise scale is cleaned",
     "[datasets][irrr]") {
