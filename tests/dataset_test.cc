@@ -430,8 +430,8 @@ TEST_CASE("Ring + 1000 random, seed 11: a sample failing at the information as g
 // one group out, leave-one-out the other: the sample says 0.14, nothing wrong is accepted.
 TEST_CASE("Ring + 100 random-grouped, seed 19: a set mixing in wrong groups is concentrated",
           "[datasets][irrr]") {
-  const CorruptedRun run = RunCorrupted(
-      "ring/vertigo/originalDataset/ring.g2o", OutlierMode::kRandomGrouped, 100, 19);
+  const CorruptedRun run =
+      RunCorrupted("ring/vertigo/originalDataset/ring.g2o", OutlierMode::kRandomGrouped, 100, 19);
   CheckNoneWrongEveryTrue(run);
   CHECK(LargestFactorDecidedAt(run.steps) < 0.5);
 }
