@@ -423,11 +423,11 @@ TEST_CASE("Ring + 1000 random, seed 11: a sample failing at the information as g
 
 // The ring + 100 random-grouped wrong loops, seed 19: the cluster of the last revisit holds its
 // 26 true loops and 34 wrong links, most pairs involve a wrong one, and its pairs' median says 1.
-// The set consistent at 1 holds the true loops and two wrong groups (123-125 -> 263-265, 291-293 ->
-// 70-72) and says 2.1; its own pairs' median is 0.59. With a concentration step only below half the
-// scale, leave-one-out took one group out, the sample said 0.79, and both groups went in with the
-// true loops (6 wrong, the factor 1 at the end). Concentrating at 0.59 leaves one group out,
-// leave-one-out the other: the sample says 0.14, nothing wrong is accepted.
+// The set consistent at 1 holds the true loops and two wrong groups (123-125 -> 263-265 and
+// 291-293 -> 70-72) and says 2.1; its own pairs' median is 0.59. With a concentration step only
+// below half the scale, leave-one-out took one group out, the sample said 0.79, and both groups
+// went in with the true loops (6 wrong, the factor 1 at the end). Concentrating at 0.59 leaves
+// one group out, leave-one-out the other: the sample says 0.14, nothing wrong is accepted.
 TEST_CASE("Ring + 100 random-grouped, seed 19: a set mixing in wrong groups is concentrated",
           "[datasets][irrr]") {
   const CorruptedRun run =
