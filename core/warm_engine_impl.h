@@ -102,7 +102,8 @@ struct WarmEngine<Pose>::Impl {
   // again, until none fails (a trimmed estimate: one wrong link among many true ones dominates the
   // cluster's chi2 and stands out against it). A sample above 1 says the set still holds links
   // the rest disagrees with: the set is concentrated once (Concentrate), then loses the most
-  // influential link per round (WithoutMostInfluential). The cluster itself is unchanged.
+  // influential link per round (WithoutMostInfluential). A sample below 1 loses the lone link
+  // the rest refutes, if any, per round (WithoutOutlyingLone). The cluster itself is unchanged.
   void Calibrate(int q);
   // A set of `all` consistent at the scale of its own pairs, stepping down from the pairs of
   // `links` (consistent at `pair_factor`) while that scale falls.
@@ -112,6 +113,11 @@ struct WarmEngine<Pose>::Impl {
   // `links` without the one whose removal lowers the local problem's chi2 most (empty: none
   // solved).
   std::vector<int> WithoutMostInfluential(const std::vector<int>& links);
+  // `links` (whose local optimum gave `sample`) without the lone link (Lone) the rest refutes
+  // most: the chi2 its removal takes away is over the F test's threshold at the rest's own scale.
+  // Empty: none is.
+  std::vector<int> WithoutOutlyingLone(const std::vector<int>& links,
+                                       const RedundancySample& sample);
   // The scale the pairs of `links` imply (PairwiseConsistency::PairwiseFactor), within
   // [kNoiselessFactor, 1].
   double PairScale(const std::vector<int>& links) const;
