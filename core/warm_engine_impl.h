@@ -113,10 +113,11 @@ struct WarmEngine<Pose>::Impl {
   // `links` without the one whose removal lowers the local problem's chi2 most (empty: none
   // solved).
   std::vector<int> WithoutMostInfluential(const std::vector<int>& links);
-  // `links` (whose local optimum gave `sample`) without the lone link (Lone) the rest refutes
-  // most: the chi2 its removal takes away is over the F test's threshold at the rest's own scale.
-  // Empty: none is.
-  std::vector<int> WithoutOutlyingLone(const std::vector<int>& links,
+  // `links` (a set of cluster `all`, whose local optimum gave `sample`) without the link lone in
+  // the cluster (Lone) the rest refutes most: the chi2 its removal takes away is over the F test's
+  // threshold at the rest's own scale. Empty: none is.
+  std::vector<int> WithoutOutlyingLone(const std::vector<int>& all,
+                                       const std::vector<int>& links,
                                        const RedundancySample& sample);
   // The scale the pairs of `links` imply (PairwiseConsistency::PairwiseFactor), within
   // [kNoiselessFactor, 1].
