@@ -177,7 +177,7 @@ void WarmEngine<Pose>::Impl::Calibrate(int q) {
     if (kept.size() == links.size()) {
       // A wrong link can fit by bending the odometry (ring: heading information 60 times too
       // loose), so its own d^2 does not show it: the link whose removal lowers the chi2 most
-      // leaves. Below 1 too, a lone link the rest refutes leaves (WithoutOutlyingLone).
+      // leaves. From any other sample, a lone link the rest refutes leaves (WithoutOutlyingLone).
       if (links.size() <= 2) break;
       kept = contaminated ? WithoutMostInfluential(links) : WithoutOutlyingLone(all, links, sample);
       if (kept.empty()) break;
@@ -245,7 +245,7 @@ std::vector<int> WarmEngine<Pose>::Impl::WithoutOutlyingLone(const std::vector<i
   // per degree of freedom, against the rest's own chi2 per degree of freedom. The ring + 100
   // random, seed 20: 58 -> 246 with the ring's 26 true loops said 0.77, pairwise consistent with
   // each of them (the ring's heading information is loose), the rest 0.14; the link added 51.3
-  // over 3 degrees of freedom, an F of 119 (its 0.999 quantile: 5.9). Lone in the cluster, not
+  // over 3 degrees of freedom, an F of 119 (its 0.999 quantile: 6.0). Lone in the cluster, not
   // only in the set: a true run the set kept one link of stands out the same way (Manhattan + 1000
   // local-grouped, seed 11: 128 -> 189, an F of 44, was left out and later reversed with its
   // neighbour 127 -> 191).

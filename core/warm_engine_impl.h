@@ -100,10 +100,11 @@ struct WarmEngine<Pose>::Impl {
   // Before any factor is known, the redundancy of cluster q on its own scale: Algorithm 1's
   // optimum, its links failing the link test at the scale they imply set aside and the rest solved
   // again, until none fails (a trimmed estimate: one wrong link among many true ones dominates the
-  // cluster's chi2 and stands out against it). A sample above 1 says the set still holds links
-  // the rest disagrees with: the set is concentrated once (Concentrate), then loses the most
-  // influential link per round (WithoutMostInfluential). A sample below 1 loses the lone link
-  // the rest refutes, if any, per round (WithoutOutlyingLone). The cluster itself is unchanged.
+  // cluster's chi2 and stands out against it). A sample above 1 (or far above its pairwise scale)
+  // says the set still holds links the rest disagrees with: the set is concentrated once
+  // (Concentrate), then loses the most influential link per round (WithoutMostInfluential). Any
+  // other sample loses the lone link the rest refutes, if any, per round (WithoutOutlyingLone).
+  // The cluster itself is unchanged.
   void Calibrate(int q);
   // A set of `all` consistent at the scale of its own pairs, stepping down from the pairs of
   // `links` (consistent at `pair_factor`) while that scale falls.
