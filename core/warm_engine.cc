@@ -222,19 +222,35 @@ LocalSolution WarmEngine<Pose>::Impl::SolveLocal(const std::vector<int>& links) 
 }
 
 template <class Pose>
-std::vector<int> WarmEngine<Pose>::Impl::WithoutMostInfluential(const std::vector<int>& links) {
+std::vector<int> WarmEngine<Pose>::Impl::WithoutBest(
+    const std::vector<int>& links,
+    const std::function<bool(int)>& tried,
+    const std::function<double(const std::vector<int>&, const LocalSolution&)>& score,
+    double floor) {
   std::vector<int> best;
-  double best_chi2 = std::numeric_limits<double>::infinity();
+  double best_score = floor;
   for (size_t i = 0; i < links.size(); ++i) {
+    if (!tried(links[i])) continue;
     std::vector<int> rest = links;
     rest.erase(rest.begin() + static_cast<std::ptrdiff_t>(i));
     const LocalSolution solution = SolveLocal(rest);
-    if (solution.ok() && solution.chi2 < best_chi2) {
-      best_chi2 = solution.chi2;
-      best = rest;
+    if (!solution.ok()) continue;
+    const double value = score(rest, solution);
+    if (value > best_score) {
+      best_score = value;
+      best = std::move(rest);
     }
   }
   return best;
+}
+
+template <class Pose>
+std::vector<int> WarmEngine<Pose>::Impl::WithoutMostInfluential(const std::vector<int>& links) {
+  return WithoutBest(
+      links,
+      [](int) { return true; },
+      [](const std::vector<int>&, const LocalSolution& rest) { return -rest.chi2; },
+      -std::numeric_limits<double>::infinity());
 }
 
 template <class Pose>
@@ -249,27 +265,16 @@ std::vector<int> WarmEngine<Pose>::Impl::WithoutOutlyingLone(const std::vector<i
   // only in the set: a true run the set kept one link of stands out the same way (Manhattan + 1000
   // local-grouped, seed 11: 128 -> 189, an F of 44, was left out and later reversed with its
   // neighbour 127 -> 191).
-  std::vector<int> best;
-  double best_ratio = 1.0;
-  for (size_t i = 0; i < links.size(); ++i) {
-    if (!Lone(links[i], all)) continue;
-    std::vector<int> rest = links;
-    rest.erase(rest.begin() + static_cast<std::ptrdiff_t>(i));
-    const LocalSolution solution = SolveLocal(rest);
-    if (!solution.ok()) continue;
+  auto refuted = [&](const std::vector<int>& rest, const LocalSolution& solution) {
     const RedundancySample own = ClusterRedundancy(pairwise, rest, solution);
     const double added_dof = sample.dof - own.dof;
-    if (!(own.dof > 0.0) || !(added_dof > 0.0)) continue;
+    if (!(own.dof > 0.0) || !(added_dof > 0.0)) return 0.0;
     const double rest_factor = std::max(own.chi2 / own.dof, kNoiselessFactor);
-    const double threshold =
-        ScaledChiSquareThreshold(options->alpha, added_dof, rest_factor, own.dof);
-    const double ratio = (sample.chi2 - own.chi2) / threshold;
-    if (ratio > best_ratio) {
-      best_ratio = ratio;
-      best = std::move(rest);
-    }
-  }
-  return best;
+    return (sample.chi2 - own.chi2) /
+           ScaledChiSquareThreshold(options->alpha, added_dof, rest_factor, own.dof);
+  };
+  return WithoutBest(
+      links, [&](int e) { return Lone(e, all); }, refuted, 1.0);
 }
 
 template <class Pose>

@@ -7,6 +7,7 @@
 // they made the tests refuse. Internal to core: include only from those two files.
 
 #include <algorithm>
+#include <functional>
 #include <limits>
 #include <map>
 #include <utility>
@@ -111,6 +112,13 @@ struct WarmEngine<Pose>::Impl {
   std::vector<int> Concentrate(const std::vector<int>& all,
                                std::vector<int> links,
                                double pair_factor) const;
+  // `links` without the one link (of those `tried` accepts) whose leaving scores highest above
+  // `floor`, `score` weighing the rest and its local problem's solution. Empty: none does.
+  std::vector<int> WithoutBest(
+      const std::vector<int>& links,
+      const std::function<bool(int)>& tried,
+      const std::function<double(const std::vector<int>&, const LocalSolution&)>& score,
+      double floor);
   // `links` without the one whose removal lowers the local problem's chi2 most (empty: none
   // solved).
   std::vector<int> WithoutMostInfluential(const std::vector<int>& links);
