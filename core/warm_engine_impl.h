@@ -268,7 +268,8 @@ struct WarmEngine<Pose>::Impl {
 
   // Cluster q, inconsistent with the good set as a whole, judged again as its runs: the largest
   // stays q, each other becomes a cluster of its own; each is joint-tested on its own, largest
-  // first (a run of one link the good set cannot check waits, as in Judge).
+  // first (a run of one link the good set cannot check waits, as in Judge), at its own factor or,
+  // too short for one, at the lowest of the cluster's runs' own factors.
   void JudgeRuns(int q, std::vector<std::vector<int>> runs, StepResult* result);
 
   bool IncreasePasses(const typename GoodSet<Pose>::Trial& trial) const {
