@@ -451,8 +451,12 @@ template <class Pose>
 double WarmEngine<Pose>::Impl::OwnVariance(int q) const {
   const JudgedCluster& c = book->clusters[q];
   if (c.redundancy_dof < kOwnFactorMinimumDof) return 0.0;
-  const double own = std::min(c.redundancy_chi2 / c.redundancy_dof, kOwnFactorRatio * variance);
-  return std::max(variance, std::min(own, 1.0));
+  return CappedOwnFactor(c.redundancy_chi2 / c.redundancy_dof);
+}
+
+template <class Pose>
+double WarmEngine<Pose>::Impl::CappedOwnFactor(double own) const {
+  return std::max(variance, std::min({own, kOwnFactorRatio * variance, 1.0}));
 }
 
 template <class Pose>
@@ -519,14 +523,13 @@ void WarmEngine<Pose>::Impl::JudgeRuns(int q,
   std::stable_sort(
       runs.begin(), runs.end(), [](const auto& a, const auto& b) { return a.size() > b.size(); });
   // A run too short to measure its own noise is judged at its place's: the lowest own factor of
-  // the cluster's runs that can (LowestRunVariance, at most kOwnFactorRatio times the global
-  // factor and 1), when that is above the global one. A revisit's matches share their error, and
+  // the cluster's runs that can (as LowestRunVariance, capped as any own factor), when that is
+  // above the global one. A revisit's matches share their error, and
   // its runs' own factors measure it; a wrong run among them raises the cluster's factor by
   // disagreeing with the true ones, not the runs' (Intel + 1000 random, seed 6: the true run
   // 786-789 -> 934-936 fell at the global 0.16, chi2 increase 6.4 against 5.5).
-  const double lowest = LowestRunVariance(q);
-  const double place =
-      std::isfinite(lowest) ? std::min({lowest, kOwnFactorRatio * variance, 1.0}) : variance;
+  const double lowest = LowestVarianceOf(runs);
+  const double place = std::isfinite(lowest) ? CappedOwnFactor(lowest) : variance;
   std::vector<int> clusters = {q};
   book->clusters[q].links = runs.front();
   for (size_t k = 1; k < runs.size(); ++k) {
@@ -585,9 +588,14 @@ void WarmEngine<Pose>::Impl::JointTest(int q, StepResult* result) {
 
 template <class Pose>
 double WarmEngine<Pose>::Impl::LowestRunVariance(int q) {
-  double lowest = std::numeric_limits<double>::infinity();
   const std::vector<std::vector<int>> runs = Runs(book->clusters[q].links);
-  if (runs.size() < 2) return lowest;
+  if (runs.size() < 2) return std::numeric_limits<double>::infinity();
+  return LowestVarianceOf(runs);
+}
+
+template <class Pose>
+double WarmEngine<Pose>::Impl::LowestVarianceOf(const std::vector<std::vector<int>>& runs) {
+  double lowest = std::numeric_limits<double>::infinity();
   for (const std::vector<int>& run : runs) {
     if (run.size() < 2) continue;
     const RedundancySample sample = ClusterRedundancy(pairwise, run, SolveLocal(run));

@@ -239,6 +239,9 @@ struct WarmEngine<Pose>::Impl {
   // 0 (the global factor) otherwise. At most kOwnFactorRatio times the global factor and 1: wrong
   // links raise a cluster's own factor (Sphere2500 + 1000 random: to 6.9, seven wrong loops in).
   double OwnVariance(int q) const;
+  // An own factor as the tests use it: at least the global factor, at most kOwnFactorRatio times
+  // it and 1.
+  double CappedOwnFactor(double own) const;
   // The link threshold at cluster q's own factor (OwnVariance), or at the global one.
   double OwnLinkThreshold(int q) const {
     const double own = OwnVariance(q);
@@ -252,6 +255,8 @@ struct WarmEngine<Pose>::Impl {
   // (Manhattan + 1000 local-grouped in tens: a group of 10 passed at the cluster's own factor,
   // twice the global one).
   double LowestRunVariance(int q);
+  // The same over `runs` (a cluster's Runs, in any order).
+  double LowestVarianceOf(const std::vector<std::vector<int>>& runs);
 
   // The parts a cluster failing the joint test is judged again as: each run of two links or more
   // (links whose ends lie within kRunGap poses of another's ends), in the order of its first
