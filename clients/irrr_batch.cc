@@ -51,6 +51,7 @@ struct BatchArguments {
   std::string plot;
   std::string labels;
   bool skip_unknown_tags = false;
+  bool skip_invalid_edges = false;
 };
 
 // Precision and recall of the decisions against an irrr-corrupt labels file (rows by file edge
@@ -136,11 +137,22 @@ int Run(const BatchArguments& args, const IrrrOptions& options, FileFormat forma
   std::vector<int> graph_edge_of_file_edge;
   ReadOptions read_options;
   read_options.skip_unknown_tags = args.skip_unknown_tags;
+  read_options.skip_invalid_edges = args.skip_invalid_edges;
   if (Status s =
           LoadPoseGraph(args.input, format, read_options, &file, &graph, &graph_edge_of_file_edge);
       !s.ok()) {
     fmt::print(stderr, "irrr-batch: {}\n", s.message());
     return EX_DATAERR;
+  }
+  if (!file.skipped.empty()) {
+    PrintSkippedLines(stderr, "irrr-batch", args.input, file.skipped);
+    // Labels index the file's edges; with lines left out they would not line up.
+    if (!args.labels.empty()) {
+      fmt::print(stderr,
+                 "irrr-batch: --labels cannot be scored against a file with skipped edge lines "
+                 "(labels count every edge line of the file)\n");
+      return EX_USAGE;
+    }
   }
   const double load_s = SecondsSince(load_start);
 
@@ -155,7 +167,7 @@ int Run(const BatchArguments& args, const IrrrOptions& options, FileFormat forma
   int num_loops = 0;
   for (const Edge<Pose>& e : graph.edges()) num_loops += e.kind == EdgeKind::kLoop ? 1 : 0;
   fmt::print(
-      "input     {}: {} {} poses in {} session(s), {} odometry edges, {} loop hypotheses "
+      "input     {}: {} {} poses in {} session(s), {} odometry edges, {} loop hypotheses{} "
       "({:.3f} s to read)\n",
       args.input,
       Pose::kName,
@@ -163,6 +175,8 @@ int Run(const BatchArguments& args, const IrrrOptions& options, FileFormat forma
       graph.num_sessions(),
       graph.num_edges() - num_loops,
       num_loops,
+      file.skipped.empty() ? std::string()
+                           : fmt::format(", {} invalid edge lines skipped", file.skipped.size()),
       load_s);
 
   std::vector<LoopDecision> decisions(graph.num_edges());
@@ -414,6 +428,11 @@ int main(int argc, char** argv) {
   app.add_flag("--skip-unknown-tags",
                args.skip_unknown_tags,
                "ignore lines with tags other than vertices and edges (e.g. EQUIV)");
+  app.add_flag("--skip-invalid-edges",
+               args.skip_invalid_edges,
+               "leave out edge lines that are well formed but invalid (self-loop, non-finite "
+               "number, information not positive definite, undeclared vertex), each named on "
+               "stderr, instead of failing");
   app.footer(
       "Defaults in brackets are IrrrOptions' own; a --config file replaces them and the options "
       "above replace the file's.\n\nExit codes: 0 ok, 64 usage, 65 bad input data, 66 input "

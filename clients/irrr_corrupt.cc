@@ -38,6 +38,7 @@ struct CorruptArguments {
   std::string labels;
   std::string mode;
   std::vector<int64_t> split;
+  bool skip_invalid_edges = false;
   OutlierOptions outliers;
 };
 
@@ -86,10 +87,13 @@ int Run(const CorruptArguments& args, FileFormat input_format) {
   GraphFile<Pose> file;
   {
     std::ifstream in(args.input);
-    if (Status s = ReadGraphFile(in, input_format, ReadOptions(), &file); !s.ok()) {
+    ReadOptions read_options;
+    read_options.skip_invalid_edges = args.skip_invalid_edges;
+    if (Status s = ReadGraphFile(in, input_format, read_options, &file); !s.ok()) {
       fmt::print(stderr, "irrr-corrupt: {}: {}\n", args.input, s.message());
       return EX_DATAERR;
     }
+    PrintSkippedLines(stderr, "irrr-corrupt", args.input, file.skipped);
   }
   if (!args.split.empty()) {
     if (Status s = SplitIntoSessions(args.split, &file); !s.ok()) {
@@ -249,6 +253,11 @@ int main(int argc, char** argv) {
                  "start a new session at each of these vertex ids (comma separated); their "
                  "odometry edges are removed")
       ->delimiter(',');
+  app.add_flag("--skip-invalid-edges",
+               args.skip_invalid_edges,
+               "leave out edge lines of INPUT that are well formed but invalid (self-loop, "
+               "non-finite number, information not positive definite, undeclared vertex), each "
+               "named on stderr; OUTPUT and its labels hold the rest");
   app.footer(
       "Exit codes: 0 ok, 64 usage, 65 bad input data or a request the graph cannot hold, 66 "
       "input missing, 70 internal error, 73 output not written.");

@@ -57,6 +57,7 @@ struct Arguments {
   std::vector<int32_t> robots;  // per session of the one file (a fleet)
   int32_t only_robot = -1;
   bool no_flush = false;
+  bool skip_invalid_edges = false;
   bool wait = false;
   double timeout_s = 600.0;
   std::string config;
@@ -200,17 +201,18 @@ class SendProgress {
 template <class Pose>
 int LoadMessages(const std::string& path,
                  FileFormat format,
+                 const ReadOptions& read_options,
                  int32_t robot_id,
                  std::vector<ReplayMessage>* messages) {
   GraphFile<Pose> file;
   PoseGraph<Pose> graph;
   std::vector<int> graph_edge_of_file_edge;
-  if (Status s =
-          LoadPoseGraph(path, format, ReadOptions(), &file, &graph, &graph_edge_of_file_edge);
+  if (Status s = LoadPoseGraph(path, format, read_options, &file, &graph, &graph_edge_of_file_edge);
       !s.ok()) {
     fmt::print(stderr, "irrr-inject: {}\n", s.message());
     return EX_DATAERR;
   }
+  PrintSkippedLines(stderr, "irrr-inject", path, file.skipped);
   *messages = ReplayMessages(graph, graph_edge_of_file_edge, robot_id);
   int loops = 0;
   for (const ReplayMessage& m : *messages) loops += m.kind == ReplayMessage::Kind::kLoop ? 1 : 0;
@@ -409,8 +411,11 @@ int Run(Arguments args) {
     }
     std::vector<ReplayMessage> messages;
     const int32_t robot = args.first_robot + static_cast<int32_t>(k);
-    const int code = dimension == 2 ? LoadMessages<Pose2>(path, format, robot, &messages)
-                                    : LoadMessages<Pose3>(path, format, robot, &messages);
+    ReadOptions read_options;
+    read_options.skip_invalid_edges = args.skip_invalid_edges;
+    const int code = dimension == 2
+                         ? LoadMessages<Pose2>(path, format, read_options, robot, &messages)
+                         : LoadMessages<Pose3>(path, format, read_options, robot, &messages);
     if (code != EX_OK) return code;
     robots.push_back(std::move(messages));
   }
@@ -476,6 +481,11 @@ int main(int argc, char** argv) {
       ->needs(robots_option)
       ->check(CLI::NonNegativeNumber);
   app.add_flag("--no-flush", args.no_flush, "do not send a FLUSH after the last message");
+  app.add_flag("--skip-invalid-edges",
+               args.skip_invalid_edges,
+               "leave out edge lines that are well formed but invalid (self-loop, non-finite "
+               "number, information not positive definite, undeclared vertex), each named on "
+               "stderr, instead of failing");
   app.add_flag(
       "--wait", args.wait, "wait until the daemon has applied everything, print its counts");
   app.add_option("--timeout", args.timeout_s, "seconds to wait for the daemon")

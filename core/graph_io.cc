@@ -250,18 +250,22 @@ Status ReadGraphFile(std::istream& in,
     }
     const std::string name = tag + " " + std::to_string(id[0]) +
                              (known->is_edge ? " " + std::to_string(id[1]) : std::string());
+    // A fault of the line's values: always an error for a vertex; for an edge, unless
+    // skip_invalid_edges leaves the line out.
+    std::string fault;
     for (int k = 0; k < expected - ids; ++k) {
       if (Status s = ParseToken(tokens[1 + ids + k], "a number", &numbers[k]); !s.ok()) {
         return Status::Error(where + name + ": " + s.message());
       }
-      if (!std::isfinite(numbers[k])) {
+      if (!std::isfinite(numbers[k]) && fault.empty()) {
         const char* part = k >= kPose ? "information" : known->is_edge ? "measurement" : "estimate";
-        return Status::Error(where + name + ": " + part + " has a non-finite number '" +
-                             std::string(tokens[1 + ids + k]) + "'");
+        fault = std::string(part) + " has a non-finite number '" +
+                std::string(tokens[1 + ids + k]) + "'";
       }
     }
 
     if (!known->is_edge) {
+      if (!fault.empty()) return Status::Error(where + name + ": " + fault);
       const auto [first, inserted] = vertex_line.emplace(id[0], line_number);
       if (!inserted) {
         return Status::Error(where + "duplicate vertex id " + std::to_string(id[0]) +
@@ -276,33 +280,52 @@ Status ReadGraphFile(std::istream& in,
       file.vertices.push_back(vertex);
       continue;
     }
-    if (id[0] == id[1]) return Status::Error(where + name + ": self-loop");
     FileEdge<Pose> edge;
     edge.from = id[0];
     edge.to = id[1];
     edge.line = line_number;
-    if (Status s = PoseFromNumbers(numbers, &edge.measurement); !s.ok()) {
-      return Status::Error(where + name + ": measurement: " + s.message());
+    if (fault.empty() && id[0] == id[1]) fault = "self-loop";
+    if (fault.empty()) {
+      if (Status s = PoseFromNumbers(numbers, &edge.measurement); !s.ok()) {
+        fault = "measurement: " + s.message();
+      }
     }
-    edge.information = InformationFromNumbers<Pose>(numbers + kPose, format);
-    if (Status s = ValidateInformation<Pose>(edge.information); !s.ok()) {
-      return Status::Error(where + name + ": " + s.message());
+    if (fault.empty()) {
+      edge.information = InformationFromNumbers<Pose>(numbers + kPose, format);
+      if (Status s = ValidateInformation<Pose>(edge.information); !s.ok()) fault = s.message();
     }
-    file.edges.push_back(edge);
+    if (fault.empty()) {
+      file.edges.push_back(edge);
+      continue;
+    }
+    const std::string message = where + name + ": " + fault;
+    if (!options.skip_invalid_edges) return Status::Error(message);
+    file.skipped.push_back(SkippedLine{line_number, message});
   }
   if (in.bad()) return Status::Error("read error after line " + std::to_string(line_number));
 
   // Vertices may be declared after the edges that use them, so endpoints are checked at the end.
   if (!file.vertices.empty()) {
+    std::vector<FileEdge<Pose>> declared;
+    declared.reserve(file.edges.size());
     for (const FileEdge<Pose>& edge : file.edges) {
-      for (const int64_t end : {edge.from, edge.to}) {
-        if (vertex_line.count(end) == 0) {
-          return Status::Error(LinePrefix(edge.line) + "edge " + std::to_string(edge.from) +
-                               " -> " + std::to_string(edge.to) + ": vertex " +
-                               std::to_string(end) + " is not declared");
-        }
+      const bool has_from = vertex_line.count(edge.from) != 0;
+      const bool has_to = vertex_line.count(edge.to) != 0;
+      if (has_from && has_to) {
+        declared.push_back(edge);
+        continue;
       }
+      const std::string message = LinePrefix(edge.line) + "edge " + std::to_string(edge.from) +
+                                  " -> " + std::to_string(edge.to) + ": vertex " +
+                                  std::to_string(has_from ? edge.to : edge.from) +
+                                  " is not declared";
+      if (!options.skip_invalid_edges) return Status::Error(message);
+      file.skipped.push_back(SkippedLine{edge.line, message});
     }
+    file.edges = std::move(declared);
+    std::stable_sort(file.skipped.begin(),
+                     file.skipped.end(),
+                     [](const SkippedLine& a, const SkippedLine& b) { return a.line < b.line; });
   }
   *out = std::move(file);
   return Status::Ok();

@@ -12,6 +12,7 @@
 #include <cstdint>
 #include <istream>
 #include <ostream>
+#include <string>
 #include <vector>
 
 #include "core/pose.h"
@@ -41,16 +42,29 @@ struct FileEdge {
   int line = 0;
 };
 
+// An edge line left out by ReadOptions::skip_invalid_edges, with the error it would have been.
+struct SkippedLine {
+  int line = 0;
+  std::string message;  // "line N: EDGE_SE2 1 1: self-loop"
+};
+
 // A file's content in file order. `vertices` is empty for edges-only files.
 template <class Pose>
 struct GraphFile {
   std::vector<FileVertex<Pose>> vertices;
   std::vector<FileEdge<Pose>> edges;
+  std::vector<SkippedLine> skipped;  // in line order; empty unless skip_invalid_edges
 };
 
 struct ReadOptions {
   // Lines whose tag is not understood (EQUIV, VERTEX_XY, ...) are an error unless this is set.
   bool skip_unknown_tags = false;
+  // An edge line that is well formed (its tag and count of numbers) but not a valid edge (a
+  // self-loop, a non-finite number, a measurement or information matrix that is not valid, or an
+  // end vertex the file does not declare) is an error unless this is set; then it is left out and
+  // listed in GraphFile::skipped. Public datasets carry such lines (New College: nine EDGE_SE2
+  // 1 1; Cubicle: information matrices that are not positive definite).
+  bool skip_invalid_edges = false;
 };
 
 // Reads lines until the first data line and reports the format and dimension (2 or 3) its tag
@@ -63,7 +77,8 @@ Status DetectGraphFile(std::istream& in, FileFormat* format, int* dimension);
 // wrong format or dimension, missing or extra fields, a token that is not a number, non-finite
 // numbers, a quaternion of non-unit norm, an information matrix that is not positive definite, a
 // duplicate vertex id, an edge to an undeclared vertex (when the file declares vertices), and a
-// self-loop. Unit quaternions are normalized to the unit sphere.
+// self-loop (the edge faults among these are skipped instead with skip_invalid_edges). Unit
+// quaternions are normalized to the unit sphere.
 template <class Pose>
 Status ReadGraphFile(std::istream& in,
                      FileFormat format,

@@ -622,6 +622,9 @@ TEST_CASE("The tools exit with sysexits codes", "[tools]") {
             "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nVERTEX_SE2 2 2 0 0\nVERTEX_SE2 3 3 0 0\n"
             "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_SE2 1 2 1 0 0 1 0 0 1 0 1\n"
             "EDGE_SE2 2 3 1 0 0 1 0 0 1 0 1\nEDGE_SE2 3 0 -3 0 0 1 0 0 1 0 1\n");
+  // tiny with a self-loop on line 9.
+  const std::string self_loop = dir + "/self_loop.g2o";
+  WriteText(self_loop, ReadText(tiny) + "EDGE_SE2 2 2 0 0 0 1 0 0 1 0 1\n");
   const std::string bad_config = dir + "/bad.json";
   WriteText(bad_config, "{\"irrr\": {\"optimizer\": {\"max_iterations\": \"ten\"}}}");
   const std::string batch = std::string(IRRR_BATCH) + " ";
@@ -642,6 +645,17 @@ TEST_CASE("The tools exit with sysexits codes", "[tools]") {
        "irrr.optimizer.max_iterations: expected an integer, got \"ten\""},
       {batch + Quoted(bad_config), 65, "bad.json"},
       {batch + Quoted(tiny) + " --output " + Quoted(dir + "/no/such/dir/out.g2o"), 73, "out.g2o"},
+      {batch + Quoted(self_loop), 65, "line 9: EDGE_SE2 2 2: self-loop"},
+      {batch + Quoted(self_loop) + " --skip-invalid-edges",
+       0,
+       "1 loop hypotheses, 1 invalid edge lines skipped"},
+      {batch + Quoted(self_loop) + " --skip-invalid-edges --labels " + Quoted(dir + "/l.csv"),
+       64,
+       "--labels cannot be scored against a file with skipped edge lines"},
+      {corrupt + Quoted(self_loop) + " " + Quoted(dir + "/c.g2o") +
+           " --mode random --count 1 --skip-invalid-edges --labels " + Quoted(dir + "/l.csv"),
+       0,
+       "skipped " + self_loop + ": line 9: EDGE_SE2 2 2: self-loop"},
       {corrupt + Quoted(tiny) + " " + Quoted(dir + "/c.g2o") + " --mode random --count 1",
        64,
        "--labels"},

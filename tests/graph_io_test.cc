@@ -379,6 +379,44 @@ TEST_CASE("Malformed input fails naming the line and leaves the output untouched
   }
 }
 
+TEST_CASE("skip_invalid_edges leaves out each invalid edge line, names it, and keeps the rest",
+          "[graph_io]") {
+  using Catch::Matchers::Contains;
+  const std::string info = kEdgeInformation2;
+  const std::string text = "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nVERTEX_SE2 2 2 0 0\n" +
+                           ("EDGE_SE2 0 1 1 0 0" + info + "\n") +       // line 4: kept
+                           ("EDGE_SE2 1 1 0.1 0 0" + info + "\n") +     // 5: self-loop
+                           "EDGE_SE2 1 2 1 0 0 10 0 0 -2 0 10\n" +      // 6: not positive definite
+                           ("EDGE_SE2 2 7 1 0 0" + info + "\n") +       // 7: vertex 7 undeclared
+                           ("EDGE_SE2 1 2 nan 0 0" + info + "\n") +     // 8: non-finite
+                           ("EDGE_SE2 1 2 0.9 0.1 0.2" + info + "\n");  // 9: kept
+  ReadOptions options;
+  options.skip_invalid_edges = true;
+  GraphFile<Pose2> file;
+  REQUIRE(ReadText(text, &file, FileFormat::kG2o, options).ok());
+  REQUIRE(file.edges.size() == 2);
+  CHECK(file.edges[0].line == 4);
+  CHECK(file.edges[1].line == 9);
+  CHECK(file.edges[1].measurement.translation().x() == 0.9);
+  REQUIRE(file.skipped.size() == 4);
+  CHECK(file.skipped[0].line == 5);
+  CHECK_THAT(file.skipped[0].message, Contains("line 5: EDGE_SE2 1 1: self-loop"));
+  CHECK(file.skipped[1].line == 6);
+  CHECK_THAT(file.skipped[1].message, Contains("line 6: ") && Contains("not positive definite"));
+  CHECK(file.skipped[2].line == 7);
+  CHECK_THAT(file.skipped[2].message, Contains("line 7: edge 2 -> 7: vertex 7 is not declared"));
+  CHECK(file.skipped[3].line == 8);
+  CHECK_THAT(file.skipped[3].message, Contains("line 8: ") && Contains("non-finite number 'nan'"));
+
+  // Without the option the first of them is the error, as before.
+  CHECK_THAT(ReadError(text), Contains("line 5: EDGE_SE2 1 1: self-loop"));
+  // Only edges are skipped: a malformed line or a bad vertex still fails the read.
+  CHECK_THAT(ReadError(text + "EDGE_SE2 0 1 1 0 0\n", FileFormat::kG2o, options),
+             Contains("line 10: EDGE_SE2 expects 11 numbers"));
+  CHECK_THAT(ReadError(text + "VERTEX_SE2 3 nan 0 0\n", FileFormat::kG2o, options),
+             Contains("line 10: VERTEX_SE2 3: estimate has a non-finite number 'nan'"));
+}
+
 TEST_CASE("DetectGraphFile recognizes each format after comments", "[graph_io]") {
   struct Case {
     const char* text;

@@ -1,5 +1,6 @@
 #include "clients/common/graph_files.h"
 
+#include <algorithm>
 #include <cstdio>
 #include <fstream>
 #include <sstream>
@@ -31,6 +32,24 @@ Status LoadPoseGraph(const std::string& path,
     return Status::Error(path + ": " + s.message());
   }
   return Status::Ok();
+}
+
+void PrintSkippedLines(std::FILE* out,
+                       const std::string& tool,
+                       const std::string& path,
+                       const std::vector<SkippedLine>& skipped) {
+  constexpr size_t kShown = 20;
+  for (size_t k = 0; k < std::min(kShown, skipped.size()); ++k) {
+    std::fprintf(
+        out, "%s: skipped %s: %s\n", tool.c_str(), path.c_str(), skipped[k].message.c_str());
+  }
+  if (skipped.size() > kShown) {
+    std::fprintf(out,
+                 "%s: skipped %zu more invalid edge lines of %s\n",
+                 tool.c_str(),
+                 skipped.size() - kShown,
+                 path.c_str());
+  }
 }
 
 FileFormat FormatForPath(const std::string& path) {

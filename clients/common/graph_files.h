@@ -4,6 +4,7 @@
 // Paths, atomic writes and ground-truth files for the command-line tools (core reads and writes
 // streams only).
 
+#include <cstdio>
 #include <functional>
 #include <ostream>
 #include <string>
@@ -26,6 +27,13 @@ Status LoadPoseGraph(const std::string& path,
                      GraphFile<Pose>* file,
                      PoseGraph<Pose>* graph,
                      std::vector<int>* graph_edge_of_file_edge);
+
+// Names on `out` each edge line ReadOptions::skip_invalid_edges left out of `path` (the first
+// 20, then how many more), as "TOOL: skipped PATH: line N: ...".
+void PrintSkippedLines(std::FILE* out,
+                       const std::string& tool,
+                       const std::string& path,
+                       const std::vector<SkippedLine>& skipped);
 
 // TORO for *.graph, g2o otherwise.
 FileFormat FormatForPath(const std::string& path);

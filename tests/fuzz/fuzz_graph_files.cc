@@ -1,10 +1,12 @@
 // libFuzzer target: the pose-graph file readers of core/graph_io.h on any bytes. The bytes are a
-// file's text; they go through DetectGraphFile, then ReadGraphFile as 2D and as 3D (with and
-// without skip_unknown_tags), and what reads goes through BuildPoseGraph. A malformed file must
-// give an error Status, never a crash, a leak or a sanitizer report. Beyond that, the contracts of
-// graph_io.h are checked (IRRR_CHECK aborts, which libFuzzer reports as a crash):
+// file's text; they go through DetectGraphFile, then ReadGraphFile as 2D and as 3D (strictly, and
+// with skip_unknown_tags and skip_invalid_edges), and what reads goes through BuildPoseGraph. A
+// malformed file must give an error Status, never a crash, a leak or a sanitizer report. Beyond
+// that, the contracts of graph_io.h are checked (IRRR_CHECK aborts, which libFuzzer reports as a
+// crash):
 //  - a failed read or build leaves its output untouched (empty);
-//  - what reads writes back, and write -> read -> write is byte-identical.
+//  - what reads writes back, and write -> read -> write is byte-identical: what the skipping read
+//    keeps reads strictly.
 
 #include <cstddef>
 #include <cstdint>
@@ -28,15 +30,17 @@ std::string Written(FileFormat format, const GraphFile<Pose>& file) {
 }
 
 template <class Pose>
-void ReadAndBuild(const std::string& text, FileFormat format, bool skip_unknown_tags) {
+void ReadAndBuild(const std::string& text, FileFormat format, bool skip) {
   ReadOptions options;
-  options.skip_unknown_tags = skip_unknown_tags;
+  options.skip_unknown_tags = skip;
+  options.skip_invalid_edges = skip;
   std::istringstream in(text);
   GraphFile<Pose> file;
   if (!ReadGraphFile(in, format, options, &file).ok()) {
-    IRRR_CHECK(file.vertices.empty() && file.edges.empty());
+    IRRR_CHECK(file.vertices.empty() && file.edges.empty() && file.skipped.empty());
     return;
   }
+  IRRR_CHECK(skip || file.skipped.empty());
 
   PoseGraph<Pose> graph;
   std::vector<int> graph_edge_of_file_edge;
@@ -71,9 +75,9 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     formats = {detected};
   }
   for (const FileFormat format : formats) {
-    for (const bool skip_unknown_tags : {false, true}) {
-      irrr::ReadAndBuild<irrr::Pose2>(text, format, skip_unknown_tags);
-      irrr::ReadAndBuild<irrr::Pose3>(text, format, skip_unknown_tags);
+    for (const bool skip : {false, true}) {
+      irrr::ReadAndBuild<irrr::Pose2>(text, format, skip);
+      irrr::ReadAndBuild<irrr::Pose3>(text, format, skip);
     }
   }
   return 0;
