@@ -37,6 +37,7 @@ struct Arguments {
   std::string ground_truth;
   std::string steps;
   std::string title;
+  bool skip_invalid_edges = false;
 };
 
 // The "ms" column of a CSV with a header line.
@@ -69,12 +70,15 @@ int Plot(const Arguments& args, FileFormat format) {
   GraphFile<Pose> file;
   PoseGraph<Pose> graph;
   std::vector<int> graph_edge_of_file_edge;
+  ReadOptions read_options;
+  read_options.skip_invalid_edges = args.skip_invalid_edges;
   if (Status s =
-          LoadPoseGraph(args.input, format, ReadOptions(), &file, &graph, &graph_edge_of_file_edge);
+          LoadPoseGraph(args.input, format, read_options, &file, &graph, &graph_edge_of_file_edge);
       !s.ok()) {
     fmt::print(stderr, "irrr-plot: {}\n", s.message());
     return EX_DATAERR;
   }
+  PrintSkippedLines(stderr, "irrr-plot", args.input, file.skipped);
   std::vector<LoopDecision> decisions(graph.num_edges());
   if (!args.decisions.empty()) {
     std::ifstream in(args.decisions);
@@ -154,6 +158,10 @@ int main(int argc, char** argv) {
   app.add_option("--ground-truth", args.ground_truth, "ground-truth poses, as irrr-batch takes");
   app.add_option("--steps", args.steps, "CSV with a \"ms\" column: the time of each iRRR step");
   app.add_option("--title", args.title, "title of the plots (default: the input's name)");
+  app.add_flag("--skip-invalid-edges",
+               args.skip_invalid_edges,
+               "leave out invalid edge lines as irrr-batch --skip-invalid-edges does (so that its "
+               "decisions line up)");
   app.footer(
       "Exit codes: 0 ok, 64 usage, 65 bad input data, 66 input missing, 73 output not written.");
   try {
