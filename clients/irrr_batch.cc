@@ -129,6 +129,12 @@ void PrintAccuracy(const PoseGraph<Pose>& graph,
   }
 }
 
+// " (the data's estimate 3.41)" when the tests used another factor, else "".
+std::string VarianceEstimateNote(const StepResult& step) {
+  if (!step.VarianceEstimateDiffers()) return "";
+  return fmt::format(" (the data's estimate {:.4g})", step.variance_estimate);
+}
+
 template <class Pose>
 int Run(const BatchArguments& args, const IrrrOptions& options, FileFormat format) {
   const auto load_start = std::chrono::steady_clock::now();
@@ -298,8 +304,10 @@ int Run(const BatchArguments& args, const IrrrOptions& options, FileFormat forma
         count[LoopState::kPending],
         num_clusters,
         args.method == "irrr" && !steps.empty()
-            ? fmt::format(
-                  "{} steps, variance factor {:.4g}, ", steps.size(), steps.back().variance_factor)
+            ? fmt::format("{} steps, variance factor {:.4g}{}, ",
+                          steps.size(),
+                          steps.back().variance_factor,
+                          VarianceEstimateNote(steps.back()))
         : args.method == "irrr" ? std::string("0 steps, ")
                                 : std::string(),
         num_components,

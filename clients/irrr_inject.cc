@@ -375,7 +375,7 @@ int Publish(const Arguments& args,
       "daemon    took all {} messages (inputs and progress requests) from {} sender(s) ({} "
       "rejected, {} duplicates ignored), {} "
       "steps, {} loops accepted, {} rejected or reversed, {} component(s), latest solution {}, "
-      "variance factor {:.4g}\n",
+      "variance factor {:.4g}{}\n",
       watcher.Total(*fleet, &sender_count_t::next_seq),
       fleet->names().size(),
       watcher.Total(*fleet, &sender_count_t::rejected),
@@ -385,7 +385,11 @@ int Publish(const Arguments& args,
       st.n_rejected,
       st.n_components,
       st.solution_id,
-      st.variance_factor);
+      st.variance_factor,
+      // The estimate only when the tests used another factor (bounded, or fixed by the config).
+      st.variance_estimate != st.variance_factor
+          ? fmt::format(" (the data's estimate {:.4g})", st.variance_estimate)
+          : std::string());
   return EX_OK;
 }
 

@@ -3,6 +3,7 @@
 
 // iRRR's options and what one step reports (core/irrr.h runs the steps).
 
+#include <cmath>
 #include <vector>
 
 #include "core/optimizer.h"
@@ -65,6 +66,12 @@ struct StepResult {
   double variance_factor = 1.0;    // the variance factor the step's tests used
   double variance_estimate = 1.0;  // the one the data gave (warm engine; tests: within [1e-6, 1])
   int reversals = 0;               // good clusters reversed by later evidence
+
+  // Whether the tests used another factor than the data's estimate: the estimate was bounded to
+  // [1e-6, 1], or irrr.variance_factor fixed the factor.
+  bool VarianceEstimateDiffers() const {
+    return std::abs(variance_estimate - variance_factor) > 1e-6 * variance_factor;
+  }
 };
 
 }  // namespace irrr

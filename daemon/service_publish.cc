@@ -9,6 +9,7 @@
 #include <utility>
 #include <vector>
 
+#include <fmt/core.h>
 #include <spdlog/spdlog.h>
 
 #include "daemon/service_state.h"
@@ -208,7 +209,7 @@ void Service::State::PublishStep(Engine<Pose>& engine,
       replaying ? spdlog::level::debug : spdlog::level::info,
       "step {} (cluster {}): {} decision(s) changed, {} accepted and {} rejected or reversed in "
       "all; {} "
-      "session(s) re-estimated; decided in {:.1f} ms ({} solves, variance factor {:.4g}), "
+      "session(s) re-estimated; decided in {:.1f} ms ({} solves, variance factor {:.4g}{}), "
       "published {:.1f} ms after the cluster closed",
       step.step,
       step.cluster,
@@ -219,11 +220,15 @@ void Service::State::PublishStep(Engine<Pose>& engine,
       decide_ms,
       step.solves,
       step.variance_factor,
+      step.VarianceEstimateDiffers()
+          ? fmt::format(", the data's estimate {:.4g}", step.variance_estimate)
+          : std::string(),
       latency_ms);
   std::lock_guard<std::mutex> lock(stats_mutex);
   stats.solution_id = c.solution_id;
   stats.last_step_latency_ms = static_cast<float>(latency_ms);
   stats.variance_factor = static_cast<float>(step.variance_factor);
+  stats.variance_estimate = static_cast<float>(step.variance_estimate);
   ++stats.n_steps;
 }
 

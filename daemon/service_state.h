@@ -139,6 +139,7 @@ struct Service::State {
   status_t stats = [] {
     status_t s{};
     s.variance_factor = 1.0f;  // before any step: the information as given
+    s.variance_estimate = 1.0f;
     return s;
   }();
   std::map<std::string, sender_count_t> senders;

@@ -574,6 +574,30 @@ TEST_CASE("irrr-corrupt splits Intel into four sessions with 600 inter-session o
 // poses (171 true loops) stands above it (three times, though it inflates the factor itself) and
 // above every other loop, and the bound is that of a d^2 over the factor estimated from the
 // optimum's 516 degrees of freedom.
+TEST_CASE("irrr-batch shows the data's variance estimate beside a factor fixed by the config",
+          "[tools]") {
+  const std::string dir = TestDirectory("variance_estimate");
+  const std::string log = dir + "/log.txt";
+  const std::string fixed = dir + "/fixed.json";
+  WriteText(fixed, "{\"irrr\": {\"variance_factor\": 1}}");
+  const std::string batch =
+      std::string(IRRR_BATCH) + " " + IRRR_SOURCE_DIR + "/data/intel.g2o --method irrr";
+  REQUIRE(RunTool(batch, log) == 0);
+  const std::string estimated = ReadText(log);
+  INFO(estimated);
+  // Estimated (Intel's information is about five times too loose): the tests use the estimate.
+  CHECK_THAT(estimated, Contains("variance factor 0.") && !Contains("the data's estimate"));
+  REQUIRE(RunTool(batch + " --config " + Quoted(fixed), log) == 0);
+  const std::string given = ReadText(log);
+  INFO(given);
+  const std::string marker = "variance factor 1 (the data's estimate ";
+  const size_t at = given.find(marker);
+  REQUIRE(at != std::string::npos);
+  const double estimate = std::stod(given.substr(at + marker.size()));
+  CHECK(estimate > 0.1);
+  CHECK(estimate < 0.3);
+}
+
 TEST_CASE("irrr-batch --method none: each loop's d^2 at the trusting optimum against the link test",
           "[tools]") {
   const std::string dir = TestDirectory("trusting_link_test");

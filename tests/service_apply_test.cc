@@ -116,6 +116,8 @@ TEST_CASE("Over memq://, the service decides as RunIncrementalIrrr and merges th
   CHECK(status.n_keyframes == graph.num_vertices());
   CHECK(status.n_steps == static_cast<int64_t>(steps.size()));
   CHECK(status.n_components == 1);  // the two sessions were merged
+  CHECK(status.variance_factor == Approx(steps.back().variance_factor));
+  CHECK(status.variance_estimate == Approx(steps.back().variance_estimate));
 
   // Decisions: hypothesis id = file edge index.
   const std::vector<HypothesisDecision> decisions = service.Decisions();
