@@ -541,13 +541,14 @@ void WarmEngine<Pose>::Impl::JudgeRuns(int q,
   // their error fell, 36 true loops; at the cluster's, a wrong group of 3 passed).
   const double own = test_variance;
   for (int r : clusters) {
-    if (HoldIfUnsupported(r, &result->changed_loops)) continue;
     test_variance = 0.0;
     if (book->clusters[r].links.size() >= 2) {
       Calibrate(r);
       test_variance = OwnVariance(r);
     }
     if (test_variance == 0.0 && place > variance) test_variance = place;
+    // A lone link waits at the factor it would be judged at (not the run's before it).
+    if (HoldIfUnsupported(r, &result->changed_loops)) continue;
     JointTestAtScale(r, result);
   }
   test_variance = own;
