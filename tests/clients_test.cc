@@ -569,11 +569,6 @@ TEST_CASE("irrr-corrupt splits Intel into four sessions with 600 inter-session o
   CHECK_THAT(ReadText(log), Contains("943 poses in 4 session(s), 939 odometry edges"));
 }
 
-// With --method none the decisions CSV gives each loop's d^2 at the trusting optimum and the link
-// test's bound at that optimum's own variance factor: one wrong loop added to Intel's first 300
-// poses (171 true loops) stands above it (three times, though it inflates the factor itself) and
-// above every other loop, and the bound is that of a d^2 over the factor estimated from the
-// optimum's 516 degrees of freedom.
 TEST_CASE("irrr-batch shows the data's variance estimate beside a factor fixed by the config",
           "[tools]") {
   const std::string dir = TestDirectory("variance_estimate");
@@ -598,6 +593,11 @@ TEST_CASE("irrr-batch shows the data's variance estimate beside a factor fixed b
   CHECK(estimate < 0.3);
 }
 
+// With --method none the decisions CSV gives each loop's d^2 at the trusting optimum and the link
+// test's bound at that optimum's own variance factor: one wrong loop added to Intel's first 300
+// poses (171 true loops) stands above it (three times, though it inflates the factor itself) and
+// above every other loop, and the bound is that of a d^2 over the factor estimated from the
+// optimum's 516 degrees of freedom.
 TEST_CASE("irrr-batch --method none: each loop's d^2 at the trusting optimum against the link test",
           "[tools]") {
   const std::string dir = TestDirectory("trusting_link_test");
