@@ -48,10 +48,6 @@ constexpr double kConcentrationRatio = 0.7;
 // Intel, KITTI 05) the ratio stayed below 4.4 but for one, 14 (a cluster of wrong groups); on the
 // parking garage + 1000 local the first clusters stood at 22 and 31.
 constexpr double kContaminationRatio = 10.0;
-// Links of a cluster whose ends lie within this many poses of another's ends form one run (a
-// place recognizer's matches along a revisit, or a group of wrong ones): a cluster that fails the
-// joint test whole is judged again run by run (JudgeRuns).
-constexpr int kRunGap = 5;
 
 }  // namespace
 
@@ -457,101 +453,6 @@ double WarmEngine<Pose>::Impl::OwnVariance(int q) const {
 template <class Pose>
 double WarmEngine<Pose>::Impl::CappedOwnFactor(double own) const {
   return std::max(variance, std::min({own, kOwnFactorRatio * variance, 1.0}));
-}
-
-template <class Pose>
-std::vector<std::vector<int>> WarmEngine<Pose>::Impl::Runs(const std::vector<int>& links) const {
-  std::vector<int> run(links.size());
-  for (size_t k = 0; k < links.size(); ++k) run[k] = static_cast<int>(k);
-  std::function<int(int)> root = [&](int k) { return run[k] == k ? k : run[k] = root(run[k]); };
-  // Two links are Near only if their lower ends lie within kRunGap of each other: each is compared
-  // with those after it in the order of lower ends, up to kRunGap further (every pair was
-  // compared before: 10% of W10000's time, with clusters of thousands of links).
-  auto lower = [&](int k) { return LowerEnd(graph->edge(links[k])); };
-  std::vector<int> order(run);
-  std::sort(order.begin(), order.end(), [&](int a, int b) { return lower(a) < lower(b); });
-  for (size_t i = 0; i < order.size(); ++i) {
-    for (size_t j = i + 1; j < order.size() && lower(order[j]) - lower(order[i]) <= kRunGap; ++j) {
-      if (Near(links[order[i]], links[order[j]])) run[root(order[i])] = root(order[j]);
-    }
-  }
-  std::vector<std::vector<int>> runs;
-  std::vector<int> index(links.size(), -1);
-  for (size_t k = 0; k < links.size(); ++k) {
-    int& r = index[root(static_cast<int>(k))];
-    if (r < 0) {
-      r = static_cast<int>(runs.size());
-      runs.emplace_back();
-    }
-    runs[r].push_back(links[k]);
-  }
-  std::vector<std::vector<int>> parts;
-  std::vector<int> lone;
-  for (std::vector<int>& r : runs) {
-    if (r.size() >= 2) {
-      parts.push_back(std::move(r));
-    } else {
-      lone.push_back(r.front());
-    }
-  }
-  if (!lone.empty()) parts.push_back(lone);
-  return parts;
-}
-
-template <class Pose>
-bool WarmEngine<Pose>::Impl::Near(int a, int b) const {
-  const Edge<Pose>& x = graph->edge(a);
-  const Edge<Pose>& y = graph->edge(b);
-  return std::abs(LowerEnd(x) - LowerEnd(y)) <= kRunGap &&
-         std::abs(UpperEnd(x) - UpperEnd(y)) <= kRunGap;
-}
-
-template <class Pose>
-bool WarmEngine<Pose>::Impl::Lone(int e, const std::vector<int>& links) const {
-  return std::none_of(links.begin(), links.end(), [&](int f) { return f != e && Near(e, f); });
-}
-
-template <class Pose>
-bool WarmEngine<Pose>::Impl::AllLone(const std::vector<int>& links) const {
-  return std::all_of(links.begin(), links.end(), [&](int e) { return Lone(e, links); });
-}
-
-template <class Pose>
-void WarmEngine<Pose>::Impl::JudgeRuns(int q,
-                                       std::vector<std::vector<int>> runs,
-                                       StepResult* result) {
-  std::stable_sort(
-      runs.begin(), runs.end(), [](const auto& a, const auto& b) { return a.size() > b.size(); });
-  // A run too short to measure its own noise is judged at its place's: the lowest own factor of
-  // the cluster's runs that can (as LowestRunVariance, capped as any own factor), when that is
-  // above the global one. A revisit's matches share their error, and
-  // its runs' own factors measure it; a wrong run among them raises the cluster's factor by
-  // disagreeing with the true ones, not the runs' (Intel + 1000 random, seed 6: the true run
-  // 786-789 -> 934-936 fell at the global 0.16, chi2 increase 6.4 against 5.5).
-  const double lowest = LowestVarianceOf(runs);
-  const double place = std::isfinite(lowest) ? CappedOwnFactor(lowest) : variance;
-  std::vector<int> clusters = {q};
-  book->clusters[q].links = runs.front();
-  for (size_t k = 1; k < runs.size(); ++k) {
-    clusters.push_back(SplitOff(q, runs[k]));
-    book->clusters[clusters.back()].in_r = true;
-  }
-  // Each at its own factor, not the cluster's: the cluster's own factor held the wrong runs'
-  // residuals (Intel + 1000 random-grouped: at the global factor true runs whose matches share
-  // their error fell, 36 true loops; at the cluster's, a wrong group of 3 passed).
-  const double own = test_variance;
-  for (int r : clusters) {
-    test_variance = 0.0;
-    if (book->clusters[r].links.size() >= 2) {
-      Calibrate(r);
-      test_variance = OwnVariance(r);
-    }
-    if (test_variance == 0.0 && place > variance) test_variance = place;
-    // A lone link waits at the factor it would be judged at (not the run's before it).
-    if (HoldIfUnsupported(r, &result->changed_loops)) continue;
-    JointTestAtScale(r, result);
-  }
-  test_variance = own;
 }
 
 template <class Pose>

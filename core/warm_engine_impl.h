@@ -1,10 +1,11 @@
 #ifndef IRRR_CORE_WARM_ENGINE_IMPL_H_
 #define IRRR_CORE_WARM_ENGINE_IMPL_H_
 
-// The warm engine's state and steps, shared by its two source files: core/warm_engine.cc judges
-// a cluster (the variance factor, the screen, Algorithm 1, the joint test and its splits);
+// The warm engine's state and steps, shared by its three source files: core/warm_engine.cc
+// judges a cluster (the variance factor, the screen, Algorithm 1, the joint test and its splits);
+// core/warm_runs.cc splits a cluster into its runs and judges a failed one run by run;
 // core/warm_reversal.cc reverses good clusters that later evidence outvotes and recovers what
-// they made the tests refuse. Internal to core: include only from those two files.
+// they made the tests refuse. Internal to core: include only from those three files.
 
 #include <algorithm>
 #include <functional>
@@ -257,6 +258,8 @@ struct WarmEngine<Pose>::Impl {
   double LowestRunVariance(int q);
   // The same over `runs` (a cluster's Runs, in any order).
   double LowestVarianceOf(const std::vector<std::vector<int>>& runs);
+
+  // ---- runs (core/warm_runs.cc) --------------------------------------------------------------
 
   // The parts a cluster failing the joint test is judged again as: each run of two links or more
   // (links whose ends lie within kRunGap poses of another's ends), in the order of its first
