@@ -3,11 +3,14 @@
 // iRRR keeps its precision and recall on Manhattan with 1000 local wrong loops, its variance
 // factor is not set by wrong links in the first clusters (Manhattan, Vertigo's ring), and on KITTI
 // 05 it reads the factor from the good set; on Bovisa its map stays within metres of GPS; New
-// College (the paper's) loads once its self-loops are skipped and merges from three sessions.
+// College (the paper's) loads once its self-loops are skipped and merges from three sessions;
+// Kimera-RPGO's two robots keep their odometry maps and refuse every loop hypothesis.
 
 #include <algorithm>
+#include <cstdint>
 #include <fstream>
 #include <set>
+#include <sstream>
 #include <string>
 #include <utility>
 #include <vector>
@@ -751,6 +754,47 @@ TEST_CASE(
   INFO("accepted " << accepted << ", only iRRR " << only_irrr << ", only batch " << only_batch);
   CHECK(only_irrr <= accepted / 50);
   CHECK(only_batch <= accepted / 50);
+}
+
+// Kimera-RPGO's test graphs (3D, GTSAM Symbol keys: the robot's letter in the top byte): each robot
+// drives a near-straight line, and its loop hypotheses repeat an odometry step (about 1 m forward)
+// between poses 6 to 19 apart. Kimera-RPGO's own tests expect none of them to pass its odometry
+// check; the two robots, read as one file, share no loop and stay two maps.
+TEST_CASE("Kimera-RPGO's two robots: every loop hypothesis refused, two maps", "[datasets][irrr]") {
+  std::stringstream both;
+  for (const char* robot : {"robot_a.g2o", "robot_b.g2o"}) {
+    std::ifstream in(SharedPath(std::string("multirobot/kimera_rpgo/") + robot));
+    REQUIRE(in.good());
+    both << in.rdbuf();
+  }
+  GraphFile<Pose3> file;
+  REQUIRE(ReadGraphFile(both, FileFormat::kG2o, ReadOptions(), &file).ok());
+  PoseGraph<Pose3> graph;
+  std::vector<int> unused;
+  REQUIRE(BuildPoseGraph(file, &graph, &unused).ok());
+  REQUIRE(graph.num_vertices() == 50 + 42);
+  REQUIRE(graph.num_sessions() == 2);
+  constexpr std::uint64_t kRobotB = std::uint64_t{'b'} << 56;
+  CHECK(graph.FindVertex(static_cast<std::int64_t>(kRobotB + 41)) >= 0);
+
+  const std::vector<LoopDecision> decisions =
+      RunIncrementalIrrr<Pose3>(graph, IrrrOptions(), nullptr, nullptr);
+  int loops = 0;
+  int refused = 0;
+  std::vector<char> active(graph.num_edges(), 0);
+  for (int e = 0; e < graph.num_edges(); ++e) {
+    if (graph.edge(e).kind == EdgeKind::kOdometry) {
+      active[e] = 1;
+      continue;
+    }
+    ++loops;
+    refused +=
+        decisions[e].state != LoopState::kAccepted && decisions[e].state != LoopState::kPending ? 1
+                                                                                                : 0;
+  }
+  CHECK(loops == 3 + 2);
+  CHECK(refused == loops);
+  CHECK(SessionComponents(graph, active) == std::vector<int>{0, 1});
 }
 
 }  // namespace
