@@ -508,6 +508,17 @@ double WarmEngine<Pose>::Impl::LowestVarianceOf(const std::vector<std::vector<in
 
 template <class Pose>
 void WarmEngine<Pose>::Impl::JointTestAtScale(int q, StepResult* result) {
+  std::vector<int> parts;
+  JointTestWhole(q, result, &parts);
+  for (int p : parts) {
+    book->clusters[p].in_r = true;
+    if (HoldIfUnsupported(p, &result->changed_loops)) continue;
+    JointTestAtScale(p, result);
+  }
+}
+
+template <class Pose>
+void WarmEngine<Pose>::Impl::JointTestWhole(int q, StepResult* result, std::vector<int>* parts) {
   std::vector<int>* changed = &result->changed_loops;
   while (true) {
     std::vector<int>& links = book->clusters[q].links;
@@ -539,9 +550,15 @@ void WarmEngine<Pose>::Impl::JointTestAtScale(int q, StepResult* result) {
         }
       }
       if (failing.empty()) {
-        good.Commit();
-        Accept(q, changed);
-        return;
+        const std::vector<std::vector<int>> bending = BendingParts(links);
+        if (bending.empty()) {
+          good.Commit();
+          Accept(q, changed);
+          return;
+        }
+        good.Rollback();
+        for (const std::vector<int>& part : bending) parts->push_back(SplitOff(q, part));
+        continue;
       }
       good.Rollback();
       for (const auto& [e, chi2] : failing) {

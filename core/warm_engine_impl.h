@@ -49,6 +49,18 @@ struct WarmEngine<Pose>::Impl {
   // link that fails its link test is reversed if its removal statistic is this far off
   // (ReverseOutvoted).
   static constexpr double kScreenMargin = 4.0;
+  // A good run whose span holds odometry that fails its link test (BendingRuns) is reversed when
+  // its removal statistic is this many times its threshold; a good run is a suspect of runs that
+  // failed one by one (ChallengeAsWhole) at this many times too (a true run near a bend stands out
+  // as well: Manhattan + 1000 local-grouped seed 11's 128 -> 189 at step 1); and a part of a
+  // cluster that passes the joint test leaves it at this many times (BendingParts).
+  static constexpr double kBendingRunMargin = 2.0;
+  // Runs and clusters of at most this many links are weighed by their removal statistic (DueRuns,
+  // MostStrained, BendingParts): its cost grows with the cube of a group's end poses (Sphere2500's
+  // rings of 196-201 links took 1.7 s each, 47 of a 52 s run; Intel's clusters of 100 and more
+  // tripled a run's time), and the wrong groups it is for are a few links (the generator's
+  // groups: 3-10).
+  static constexpr size_t kMaxWeighedLinks = 20;
 
   Impl(const PoseGraph<Pose>* g,
        const IrrrOptions* o,
@@ -279,6 +291,14 @@ struct WarmEngine<Pose>::Impl {
   // first (a run of one link the good set cannot check waits, as in Judge), at its own factor or,
   // too short for one, at the lowest of the cluster's runs' own factors.
   void JudgeRuns(int q, std::vector<std::vector<int>> runs, StepResult* result);
+  // The parts of cluster links `links`, at the open trial's optimum with them, that the rest and
+  // the good set refute: each run of two links or more (up to kMaxWeighedLinks) and each lone
+  // link whose removal statistic is kBendingRunMargin times its threshold or more, when the
+  // links hold two parts or more; most refuted first, and the least stays if all would leave. A
+  // wrong part hides in a large cluster's degrees of freedom: on Intel + 1000 local-grouped, seed
+  // 19, the group 654-656 -> 629-631 (0.5 m off the oracle, where Intel's true loops lie within
+  // 0.15 m) stood at 2.6 times its threshold inside a cluster of 91 links that passed.
+  std::vector<std::vector<int>> BendingParts(const std::vector<int>& links) const;
 
   bool IncreasePasses(const typename GoodSet<Pose>::Trial& trial) const {
     return trial.ok && (trial.dof <= 0.0 || trial.increase < Threshold(trial.dof));
@@ -294,7 +314,12 @@ struct WarmEngine<Pose>::Impl {
 
   void JointTest(int q, StepResult* result);
 
+  // Algorithm 2's joint test of cluster q at test_variance: accepted, or refused with suspects
+  // challenged. Parts that BendingParts finds leave the cluster before it is accepted, and are
+  // judged on their own afterwards (a lone link the good set cannot check waits, as in JudgeRuns).
   void JointTestAtScale(int q, StepResult* result);
+  // JointTestAtScale of q itself; the parts that left it are added to `parts`.
+  void JointTestWhole(int q, StepResult* result, std::vector<int>* parts);
 
   // When no good cluster is inconsistent at the open trial of cluster q (of two links or more)
   // that failed the joint test: the smaller good clusters, and the lone links (near no other of

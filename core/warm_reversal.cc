@@ -27,18 +27,8 @@ constexpr int kMaxOutvotedPerStep = 8;
 // it had when they were last judged, or the variance factor has fallen by this ratio.
 constexpr int kEvidenceGrowth = 2;
 constexpr double kFactorFall = 1.5;
-// DueRuns and MostStrained weigh runs and clusters of at most this many links: the removal
-// statistic's cost grows with the cube of a group's end poses (Sphere2500's rings of 196-201 links
-// took 1.7 s each, 47 of a 52 s run; Intel's clusters of 100 and more tripled a run's time), and
-// the wrong groups they are for are a few links (the generator's groups: 3-10).
-constexpr size_t kMaxWeighedLinks = 20;
 // Times a failed challenge names further suspects (MostStrained) and is tried again.
 constexpr int kMaxWiderChallenges = 3;
-// A good run whose span holds odometry that fails its link test (BendingRuns) is reversed when its
-// removal statistic is this many times its threshold; a good run is a suspect of runs that failed
-// one by one (ChallengeAsWhole) at this many times too (a true run near a bend stands out as well:
-// Manhattan + 1000 local-grouped seed 11's 128 -> 189 at step 1).
-constexpr double kBendingRunMargin = 2.0;
 // A bending run whose removal statistic stood below half its margin is judged again only once its
 // strain (BendingRun) or the variance factor has changed by more than this ratio, or links have
 // left the good set (RunJudgement): judging every bending run at every step took most of the

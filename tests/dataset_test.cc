@@ -1,7 +1,8 @@
 // Public datasets from ../shared: every file loads with the counts the dataset README lists, and
 // the optimizer reaches the known optimum of Manhattan, Intel and Sphere2500 from the raw guess;
-// iRRR keeps its precision and recall on Manhattan with 1000 local wrong loops, its variance
-// factor is not set by wrong links in the first clusters (Manhattan, Vertigo's ring), and on KITTI
+// iRRR keeps its precision and recall on Manhattan with 1000 local wrong loops, a wrong part of a
+// large true cluster leaves it (Intel), its variance factor is not set by wrong links in the
+// first clusters (Manhattan, Vertigo's ring), and on KITTI
 // 05 it reads the factor from the good set; on Bovisa its map stays within metres of GPS; New
 // College (the paper's) loads once its self-loops are skipped and merges from three sessions;
 // Kimera-RPGO's two robots keep their odometry maps and refuse every loop hypothesis.
@@ -420,6 +421,27 @@ TEST_CASE("Intel + 1000 random-grouped: the near-true wrong group stays out, rec
 TEST_CASE("Intel + 1000 random, seed 6: a short run is judged at its place's factor",
           "[datasets][irrr]") {
   const CorruptedRun run = RunCorrupted("intel/vertigo/intel.g2o", OutlierMode::kRandom, 1000, 6);
+  CheckNoneWrongRecallAtLeast99(run);
+}
+
+// Intel + 1000 wrong loops, three seeds the engine was not tuned on: a wrong group or link came
+// in with a large true cluster, its error diluted by the cluster's many degrees of freedom.
+// Local-grouped seed 19's group 654-656 -> 629-631 (0.5 m and 0.07 rad off the oracle, where
+// Intel's true loops lie within 0.15 m and 0.04 rad) came in with a revisit of 112 links; local
+// seed 18's 833 -> 818 and random seed 20's 657 -> 675 are 0.3-0.4 m off. At the cluster's joint
+// optimum their removal statistics stood at 2.6-2.9 times their thresholds: they leave it before
+// it is accepted (BendingParts) and fail on their own.
+TEST_CASE("Intel + 1000, seeds 18-20: a wrong part of a large true cluster leaves it",
+          "[datasets][irrr]") {
+  struct Case {
+    OutlierMode mode;
+    int seed;
+  };
+  const Case c = GENERATE(Case{OutlierMode::kLocal, 18},
+                          Case{OutlierMode::kLocalGrouped, 19},
+                          Case{OutlierMode::kRandom, 20});
+  CAPTURE(OutlierModeName(c.mode), c.seed);
+  const CorruptedRun run = RunCorrupted("intel/vertigo/intel.g2o", c.mode, 1000, c.seed);
   CheckNoneWrongRecallAtLeast99(run);
 }
 
