@@ -299,6 +299,13 @@ struct WarmEngine<Pose>::Impl {
   // 19, the group 654-656 -> 629-631 (0.5 m off the oracle, where Intel's true loops lie within
   // 0.15 m) stood at 2.6 times its threshold inside a cluster of 91 links that passed.
   std::vector<std::vector<int>> BendingParts(const std::vector<int>& links) const;
+  // `links` as parts: each run of two links or more (Runs), and each lone link on its own.
+  std::vector<std::vector<int>> Parts(const std::vector<int>& links) const;
+  // Of `groups` of links in the good set (or the open trial), those whose removal statistic is
+  // kBendingRunMargin times their threshold or more, most refuted first: (statistic over
+  // threshold, index in `groups`). A statistic that came out NaN (the matrix not positive
+  // definite) reaches nothing.
+  std::vector<std::pair<double, size_t>> Refuted(const std::vector<std::vector<int>>& groups) const;
 
   bool IncreasePasses(const typename GoodSet<Pose>::Trial& trial) const {
     return trial.ok && (trial.dof <= 0.0 || trial.increase < Threshold(trial.dof));

@@ -361,16 +361,8 @@ typename WarmEngine<Pose>::Impl::Weighed WarmEngine<Pose>::Impl::WeighedAgainst(
 
 template <class Pose>
 std::vector<int> WarmEngine<Pose>::Impl::MostStrained(const Weighed& weighed) {
-  if (weighed.clusters.empty()) return {};
-  const std::vector<double> removal = good.LinearizeRemovals(weighed.links);
-  std::vector<std::pair<double, int>> ranked;  // (removal over threshold, good cluster)
-  for (size_t k = 0; k < weighed.links.size(); ++k) {
-    const double index = removal[k] / Threshold(d * static_cast<double>(weighed.links[k].size()));
-    if (index >= kBendingRunMargin) ranked.push_back({index, weighed.clusters[k]});
-  }
-  std::sort(ranked.rbegin(), ranked.rend());
   std::vector<int> strained;
-  for (const auto& [unused, g] : ranked) strained.push_back(g);
+  for (const auto& [unused, k] : Refuted(weighed.links)) strained.push_back(weighed.clusters[k]);
   return strained;
 }
 
@@ -399,27 +391,14 @@ void WarmEngine<Pose>::Impl::ChallengeAsWhole(const std::vector<int>& whole,
   for (int g = 0; g < static_cast<int>(book->clusters.size()); ++g) {
     const JudgedCluster& c = book->clusters[g];
     if (!c.in_good || !Within(components, g)) continue;
-    for (std::vector<int>& run : Runs(c.links)) {
-      if (run.size() >= 2 && Lone(run.front(), run)) {
-        for (int e : run) {
-          owner.push_back(g);
-          groups.push_back({e});
-        }
-      } else {
-        owner.push_back(g);
-        groups.push_back(std::move(run));
-      }
+    for (std::vector<int>& part : Parts(c.links)) {
+      owner.push_back(g);
+      groups.push_back(std::move(part));
     }
   }
-  const std::vector<double> removal = good.LinearizeRemovals(groups);
+  const std::vector<std::pair<double, size_t>> ranked = Refuted(groups);
   good.Rollback();
-  std::vector<std::pair<double, size_t>> ranked;  // (removal over threshold, group)
-  for (size_t k = 0; k < groups.size(); ++k) {
-    const double index = removal[k] / Threshold(d * static_cast<double>(groups[k].size()));
-    if (index >= kBendingRunMargin) ranked.push_back({index, k});
-  }
   if (ranked.empty()) return;
-  std::sort(ranked.rbegin(), ranked.rend());
   std::vector<std::pair<int, int>> parts;  // (part split off, the cluster it left)
   std::vector<int> suspects;               // most inconsistent first
   for (const auto& [index, k] : ranked) {

@@ -115,51 +115,67 @@ void WarmEngine<Pose>::Impl::JudgeRuns(int q,
 }
 
 template <class Pose>
-std::vector<std::vector<int>> WarmEngine<Pose>::Impl::BendingParts(
-    const std::vector<int>& links) const {
-  std::vector<std::vector<int>> parts;  // those weighed
-  size_t count = 0;                     // all, the runs too large to weigh among them
+std::vector<std::vector<int>> WarmEngine<Pose>::Impl::Parts(const std::vector<int>& links) const {
+  std::vector<std::vector<int>> parts;
   for (std::vector<int>& run : Runs(links)) {
     if (run.size() >= 2 && !Lone(run.front(), run)) {
-      ++count;
-      if (run.size() <= kMaxWeighedLinks) parts.push_back(std::move(run));
+      parts.push_back(std::move(run));
     } else {
-      count += run.size();
       for (int e : run) parts.push_back({e});
     }
   }
-  std::vector<std::vector<int>> bending;
-  if (count < 2) return bending;
-  const std::vector<double> removal = good.LinearizeRemovals(parts);
-  std::vector<std::pair<double, size_t>> ranked;  // (statistic over threshold, part)
-  size_t links_bending = 0;
-  for (size_t k = 0; k < parts.size(); ++k) {
-    const double ratio = removal[k] / Threshold(d * static_cast<double>(parts[k].size()));
-    // A statistic that came out NaN (the matrix not positive definite) reaches nothing.
-    if (ratio >= kBendingRunMargin) {
-      ranked.push_back({ratio, k});
-      links_bending += parts[k].size();
-    }
+  return parts;
+}
+
+template <class Pose>
+std::vector<std::pair<double, size_t>> WarmEngine<Pose>::Impl::Refuted(
+    const std::vector<std::vector<int>>& groups) const {
+  std::vector<std::pair<double, size_t>> ranked;
+  if (groups.empty()) return ranked;
+  const std::vector<double> removal = good.LinearizeRemovals(groups);
+  for (size_t k = 0; k < groups.size(); ++k) {
+    const double ratio = removal[k] / Threshold(d * static_cast<double>(groups[k].size()));
+    if (ratio >= kBendingRunMargin) ranked.push_back({ratio, k});
   }
-  // Most refuted first; the least stays when all would leave (parts that refute each other).
   std::sort(ranked.rbegin(), ranked.rend());
-  if (links_bending == links.size()) ranked.pop_back();
+  return ranked;
+}
+
+template <class Pose>
+std::vector<std::vector<int>> WarmEngine<Pose>::Impl::BendingParts(
+    const std::vector<int>& links) const {
+  std::vector<std::vector<int>> parts = Parts(links);
+  if (parts.size() < 2) return {};
+  parts.erase(std::remove_if(parts.begin(),
+                             parts.end(),
+                             [](const std::vector<int>& p) { return p.size() > kMaxWeighedLinks; }),
+              parts.end());
+  std::vector<std::pair<double, size_t>> ranked = Refuted(parts);
+  size_t links_bending = 0;
+  for (const auto& [unused, k] : ranked) links_bending += parts[k].size();
+  // The least refuted stays when all would leave (parts that refute each other).
+  if (!ranked.empty() && links_bending == links.size()) ranked.pop_back();
+  std::vector<std::vector<int>> bending;
   for (const auto& [unused, k] : ranked) bending.push_back(std::move(parts[k]));
   return bending;
 }
 
 // Calibrate, JointTestAtScale and the rest are instantiated with the engine
 // (core/warm_engine.cc).
-#define IRRR_INSTANTIATE_RUNS(Pose)                                                            \
-  template std::vector<std::vector<int>> WarmEngine<Pose>::Impl::Runs(const std::vector<int>&) \
-      const;                                                                                   \
-  template bool WarmEngine<Pose>::Impl::Near(int, int) const;                                  \
-  template bool WarmEngine<Pose>::Impl::Lone(int, const std::vector<int>&) const;              \
-  template bool WarmEngine<Pose>::Impl::AllLone(const std::vector<int>&) const;                \
-  template void WarmEngine<Pose>::Impl::JudgeRuns(                                             \
-      int, std::vector<std::vector<int>>, StepResult*);                                        \
-  template std::vector<std::vector<int>> WarmEngine<Pose>::Impl::BendingParts(                 \
-      const std::vector<int>&) const;
+#define IRRR_INSTANTIATE_RUNS(Pose)                                                             \
+  template std::vector<std::vector<int>> WarmEngine<Pose>::Impl::Runs(const std::vector<int>&)  \
+      const;                                                                                    \
+  template bool WarmEngine<Pose>::Impl::Near(int, int) const;                                   \
+  template bool WarmEngine<Pose>::Impl::Lone(int, const std::vector<int>&) const;               \
+  template bool WarmEngine<Pose>::Impl::AllLone(const std::vector<int>&) const;                 \
+  template void WarmEngine<Pose>::Impl::JudgeRuns(                                              \
+      int, std::vector<std::vector<int>>, StepResult*);                                         \
+  template std::vector<std::vector<int>> WarmEngine<Pose>::Impl::BendingParts(                  \
+      const std::vector<int>&) const;                                                           \
+  template std::vector<std::vector<int>> WarmEngine<Pose>::Impl::Parts(const std::vector<int>&) \
+      const;                                                                                    \
+  template std::vector<std::pair<double, size_t>> WarmEngine<Pose>::Impl::Refuted(              \
+      const std::vector<std::vector<int>>&) const;
 IRRR_INSTANTIATE_RUNS(Pose2)
 IRRR_INSTANTIATE_RUNS(Pose3)
 #undef IRRR_INSTANTIATE_RUNS
