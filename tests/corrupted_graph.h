@@ -104,6 +104,19 @@ std::vector<int> PendingInClusters(const PoseGraph<Pose>& graph,
   return pending;
 }
 
+// The edges of the map `decisions` leave: the odometry and the accepted loops (an `active` mask
+// for Optimizer::Solve and SessionComponents).
+template <class Pose>
+std::vector<char> MapEdges(const PoseGraph<Pose>& graph,
+                           const std::vector<LoopDecision>& decisions) {
+  std::vector<char> active(graph.num_edges(), 0);
+  for (int e = 0; e < graph.num_edges(); ++e) {
+    active[e] =
+        graph.edge(e).kind == EdgeKind::kOdometry || decisions[e].state == LoopState::kAccepted;
+  }
+  return active;
+}
+
 }  // namespace testing
 }  // namespace irrr
 

@@ -749,12 +749,8 @@ TEST_CASE(
   const std::vector<char> in_three = AcceptedLoops(three, decisions);
   REQUIRE(in_one.size() == 641);
   REQUIRE(in_three.size() == in_one.size());
-  std::vector<char> active(three.num_edges(), 0);
-  for (int e = 0; e < three.num_edges(); ++e) {
-    active[e] =
-        three.edge(e).kind == EdgeKind::kOdometry || decisions[e].state == LoopState::kAccepted;
-  }
-  CHECK(SessionComponents(three, active) == std::vector<int>{0, 0, 0});  // one map
+  CHECK(SessionComponents(three, testing::MapEdges(three, decisions)) ==
+        std::vector<int>{0, 0, 0});  // one map
   // Where each session starts changes no decision (but for rounding).
   int differ = 0;
   int accepted = 0;
@@ -803,19 +799,15 @@ TEST_CASE("Kimera-RPGO's two robots: every loop hypothesis refused, two maps", "
       RunIncrementalIrrr<Pose3>(graph, IrrrOptions(), nullptr, nullptr);
   int loops = 0;
   int refused = 0;
-  std::vector<char> active(graph.num_edges(), 0);
   for (int e = 0; e < graph.num_edges(); ++e) {
-    if (graph.edge(e).kind == EdgeKind::kOdometry) {
-      active[e] = 1;
-      continue;
-    }
+    if (graph.edge(e).kind != EdgeKind::kLoop) continue;
     ++loops;
     const LoopState state = decisions[e].state;
     if (state != LoopState::kAccepted && state != LoopState::kPending) ++refused;
   }
   CHECK(loops == 3 + 2);
   CHECK(refused == loops);
-  CHECK(SessionComponents(graph, active) == std::vector<int>{0, 1});
+  CHECK(SessionComponents(graph, testing::MapEdges(graph, decisions)) == std::vector<int>{0, 1});
 }
 
 }  // namespace

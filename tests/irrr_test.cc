@@ -24,6 +24,7 @@ using testing::Corrupted;
 using testing::CountAccepted;
 using testing::MakeCorrupted;
 using testing::MakeSyntheticGraph;
+using testing::MapEdges;
 using testing::NoisyWorld;
 using testing::PendingInClusters;
 using testing::SyntheticOptions;
@@ -68,13 +69,8 @@ void CheckEstimateIsOptimumOfAccepted(const Corrupted<Pose>& corrupted,
                                       const std::vector<LoopDecision>& decisions,
                                       const std::vector<Pose>& robust,
                                       double slack_dofs) {
-  std::vector<char> accepted(corrupted.graph.num_edges(), 0);
-  int edges = 0;
-  for (int e = 0; e < corrupted.graph.num_edges(); ++e) {
-    accepted[e] = corrupted.graph.edge(e).kind == EdgeKind::kOdometry ||
-                  decisions[e].state == LoopState::kAccepted;
-    edges += accepted[e];
-  }
+  const std::vector<char> accepted = MapEdges(corrupted.graph, decisions);
+  const int edges = static_cast<int>(std::count(accepted.begin(), accepted.end(), 1));
   Optimizer<Pose> optimizer;
   std::vector<Pose> polished = robust;
   const OptimizerSummary summary = optimizer.Solve(corrupted.graph, accepted, &polished);
@@ -673,12 +669,7 @@ TEST_CASE(
   INFO(count.accepted_true << " of " << count.true_loops << " true loops accepted");
   CHECK(count.accepted_wrong == 0);
   CHECK(static_cast<double>(count.accepted_true) / count.true_loops >= kTargetRecall);
-  std::vector<char> active(graph.num_edges(), 0);
-  for (int e = 0; e < graph.num_edges(); ++e) {
-    active[e] =
-        graph.edge(e).kind == EdgeKind::kOdometry || run.decisions[e].state == LoopState::kAccepted;
-  }
-  const std::vector<int> components = SessionComponents(graph, active);
+  const std::vector<int> components = SessionComponents(graph, MapEdges(graph, run.decisions));
   CHECK(components == std::vector<int>{0, 0, 0, 0});
 }
 
