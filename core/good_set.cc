@@ -161,23 +161,25 @@ std::vector<int> GoodSet<Pose>::Components() const {
 }
 
 template <class Pose>
-std::vector<Eigen::MatrixXd> GoodSet<Pose>::Covariances(
-    const std::vector<std::vector<int>>& sets) const {
-  IRRR_CHECK(!sets.empty() && !sets.front().empty());
-  return impl_->SolverOfVertex(sets.front().front())->Covariances(sets);
+std::vector<Eigen::MatrixXd> GoodSet<Pose>::ProjectedCovariances(
+    const std::vector<CovarianceProjection>& projections) const {
+  IRRR_CHECK(!projections.empty() && !projections.front().vertices.empty());
+  return impl_->SolverOfVertex(projections.front().vertices.front())
+      ->ProjectedCovariances(projections);
 }
 
 namespace {
 
 // For groups of loops whose ends lie in one component of `good` (its open trial's, during one):
-// visit(k, ends, sigma) with group k's end poses (in the order its loops name them, each once)
-// and their joint marginal covariance. Groups of at most kLinearizeChunk loops together (a larger
-// one alone) share one covariance recovery; each group's covariance is of its own ends only.
+// visit(k, stack, projected) with group k's loops stacked at `estimate` (StackEdges, against
+// their end poses) and J Sigma J' from the factorization. Groups of at most kLinearizeChunk loops
+// together (a larger one alone) share one recovery; each costs d columns per loop.
 template <class Pose, class Visit>
-void ForEachJointCovariance(const GoodSet<Pose>& good,
-                            const PoseGraph<Pose>& graph,
-                            const std::vector<std::vector<int>>& groups,
-                            Visit visit) {
+void ForEachProjectedCovariance(const GoodSet<Pose>& good,
+                                const PoseGraph<Pose>& graph,
+                                const std::vector<std::vector<int>>& groups,
+                                const std::vector<Pose>& estimate,
+                                Visit visit) {
   for (size_t first = 0; first < groups.size();) {
     size_t last = first;
     size_t loops = 0;
@@ -186,19 +188,26 @@ void ForEachJointCovariance(const GoodSet<Pose>& good,
       loops += groups[last].size();
       ++last;
     }
-    std::vector<std::vector<int>> ends(last - first);
+    std::vector<StackedEdges<Pose>> stacks;
+    std::vector<CovarianceProjection> projections;
     for (size_t k = first; k < last; ++k) {
-      std::vector<int>& group_ends = ends[k - first];
+      CovarianceProjection projection;
+      std::vector<const Edge<Pose>*> edges;
       for (int e : groups[k]) {
+        edges.push_back(&graph.edge(e));
         for (int v : {graph.edge(e).from, graph.edge(e).to}) {
-          if (std::find(group_ends.begin(), group_ends.end(), v) == group_ends.end()) {
-            group_ends.push_back(v);
+          if (std::find(projection.vertices.begin(), projection.vertices.end(), v) ==
+              projection.vertices.end()) {
+            projection.vertices.push_back(v);
           }
         }
       }
+      stacks.push_back(StackEdges<Pose>(edges, estimate, projection.vertices));
+      projection.A = stacks.back().TransposedJacobian();
+      projections.push_back(std::move(projection));
     }
-    const std::vector<Eigen::MatrixXd> sigma = good.Covariances(ends);
-    for (size_t k = first; k < last; ++k) visit(k, ends[k - first], sigma[k - first]);
+    const std::vector<Eigen::MatrixXd> projected = good.ProjectedCovariances(projections);
+    for (size_t k = first; k < last; ++k) visit(k, stacks[k - first], projected[k - first]);
     first = last;
   }
 }
@@ -208,16 +217,16 @@ void ForEachJointCovariance(const GoodSet<Pose>& good,
 template <class Pose>
 std::vector<LinearizedAddition> GoodSet<Pose>::LinearizeEach(const std::vector<int>& loops) const {
   IRRR_CHECK(!impl_->trial_open);
-  const PoseGraph<Pose>& graph = *impl_->graph;
   std::vector<std::vector<int>> groups;
   for (int e : loops) groups.push_back({e});
   std::vector<LinearizedAddition> out(loops.size());
-  ForEachJointCovariance<Pose>(
+  ForEachProjectedCovariance<Pose>(
       *this,
-      graph,
+      *impl_->graph,
       groups,
-      [&](size_t k, const std::vector<int>& ends, const Eigen::MatrixXd& sigma) {
-        out[k] = LinearizeAddition<Pose>({&graph.edge(loops[k])}, *impl_->estimate, ends, sigma);
+      *impl_->estimate,
+      [&](size_t k, const StackedEdges<Pose>& stack, const Eigen::MatrixXd& projected) {
+        out[k] = AdditionStatistic(stack, projected);
       });
   return out;
 }
@@ -227,16 +236,19 @@ std::vector<double> GoodSet<Pose>::LinearizeRemovals(
     const std::vector<std::vector<int>>& groups) const {
   const PoseGraph<Pose>& graph = *impl_->graph;
   std::vector<Pose> at = *impl_->estimate;  // with the open trial's poses written in
+  for (const std::vector<int>& group : groups) {
+    for (int e : group) {
+      for (int v : {graph.edge(e).from, graph.edge(e).to}) at[v] = Estimate(v);
+    }
+  }
   std::vector<double> out(groups.size());
-  ForEachJointCovariance<Pose>(
+  ForEachProjectedCovariance<Pose>(
       *this,
       graph,
       groups,
-      [&](size_t k, const std::vector<int>& ends, const Eigen::MatrixXd& sigma) {
-        std::vector<const Edge<Pose>*> edges;
-        for (int e : groups[k]) edges.push_back(&graph.edge(e));
-        for (int v : ends) at[v] = Estimate(v);
-        out[k] = LinearizeRemoval<Pose>(edges, at, ends, sigma);
+      at,
+      [&](size_t k, const StackedEdges<Pose>& stack, const Eigen::MatrixXd& projected) {
+        out[k] = RemovalStatistic(stack, projected);
       });
   return out;
 }

@@ -46,12 +46,13 @@ class GoodSet {
   // Every session's component, numbered 0, 1, ... by earliest session.
   std::vector<int> Components() const;
 
-  // The joint marginal covariance of each set of poses, all of one component
-  // (IncrementalSolver::Covariances), that of the open trial's if they are in it.
-  std::vector<Eigen::MatrixXd> Covariances(const std::vector<std::vector<int>>& sets) const;
+  // A' Sigma A for each projection, all of one component (IncrementalSolver::
+  // ProjectedCovariances), from the open trial's factorization if its poses are in it.
+  std::vector<Eigen::MatrixXd> ProjectedCovariances(
+      const std::vector<CovarianceProjection>& projections) const;
   // Each loop's linearized addition alone (LinearizeAddition: its chi2 increase and redundancy
-  // number) at the estimate, its ends in one component: the marginal covariance of its end poses
-  // from the factorization, a few sparse solves per 32 loops. Not during a trial.
+  // number) at the estimate, its ends in one component: J Sigma J' of its end poses from the
+  // factorization, a few sparse solves per 32 loops. Not during a trial.
   std::vector<LinearizedAddition> LinearizeEach(const std::vector<int>& loops) const;
 
   // For each group of loops (all in the good set, or in the open trial, in one component): the

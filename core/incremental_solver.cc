@@ -292,6 +292,12 @@ std::vector<Eigen::MatrixXd> IncrementalSolver<Pose>::Covariances(
 }
 
 template <class Pose>
+std::vector<Eigen::MatrixXd> IncrementalSolver<Pose>::ProjectedCovariances(
+    const std::vector<CovarianceProjection>& projections) const {
+  return impl_->ProjectedCovariances(projections);
+}
+
+template <class Pose>
 bool IncrementalSolver<Pose>::Contains(int vertex) const {
   return vertex == impl_->anchor || impl_->SlotOf(vertex) >= 0;
 }

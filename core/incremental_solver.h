@@ -78,6 +78,14 @@ struct IncrementalSolverOptions {
   Status Validate() const;
 };
 
+// A' Sigma A, with Sigma the joint marginal covariance of `vertices` (in the problem, d*m x d*m in
+// their order, as Covariance gives it) and A d*m x k: the covariance of k linear functions of the
+// poses, such as a set of edges' residuals (A = J').
+struct CovarianceProjection {
+  std::vector<int> vertices;
+  Eigen::MatrixXd A;
+};
+
 // What one change of the problem did.
 struct IncrementalSummary {
   bool ok = false;       // false: the system could not be solved (see message); the problem is
@@ -139,6 +147,11 @@ class IncrementalSolver {
   // The joint marginal covariance of each set of vertices, as Covariance would give it, from one
   // recovery for their union: each set costs the products of its own columns, not the union's.
   std::vector<Eigen::MatrixXd> Covariances(const std::vector<std::vector<int>>& sets) const;
+  // A' Sigma A for each projection, from one recovery for the union of their poses: the k columns
+  // of A cost k solves along the poses' paths where Sigma itself would cost d*m (A = J' of one
+  // edge: d instead of 2d).
+  std::vector<Eigen::MatrixXd> ProjectedCovariances(
+      const std::vector<CovarianceProjection>& projections) const;
 
   bool Contains(int vertex) const;
   int anchor() const;

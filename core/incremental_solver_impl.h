@@ -689,18 +689,20 @@ struct IncrementalSolver<Pose>::Impl {
 
   // ---- covariance --------------------------------------------------------------------------
 
-  std::vector<Eigen::MatrixXd> Covariances(const std::vector<std::vector<int>>& sets) const {
-    std::vector<int> query;  // the union of the sets
-    for (const std::vector<int>& set : sets) query.insert(query.end(), set.begin(), set.end());
-    std::sort(query.begin(), query.end());
-    query.erase(std::unique(query.begin(), query.end()), query.end());
+  // Y = L^-1 P B and D^-1, on the rows of the elimination-tree paths from the variables of
+  // `query` (sorted, each once) to the root, where Y can be nonzero: B holds d rows per queried
+  // pose (the anchor's are not read: it is fixed) and is zero on every other pose. The
+  // covariance of the queried poses' variables is then Y' D^-1 Y (P A P' = L D L').
+  void ForwardSolve(const std::vector<int>& query,
+                    const Eigen::MatrixXd& B,
+                    RowMajorMatrix* Y,
+                    Eigen::VectorXd* inverse_d) const {
     const int m = static_cast<int>(query.size());
     const int* Lp = static_cast<const int*>(factor->p);
     const int* Li = static_cast<const int*>(factor->i);
     const int* Lnz = static_cast<const int*>(factor->nz);
     const double* Lx = static_cast<const double*>(factor->x);
-    // The union of the elimination-tree paths from each queried variable to the root, in
-    // ascending (topological) order.
+    // The union of the paths, in ascending (topological) order.
     std::vector<int> columns;
     std::vector<int> starts(d * m, -1);
     for (int k = 0; k < m; ++k) {
@@ -720,36 +722,86 @@ struct IncrementalSolver<Pose>::Impl {
     std::sort(columns.begin(), columns.end());
     row_of.resize(factor->n, -1);
     for (size_t k = 0; k < columns.size(); ++k) row_of[columns[k]] = static_cast<int>(k);
-    // Y = L^-1 P [e_i ...] on those rows; a set's covariance is Y_set' D^-1 Y_set, with Y_set its
-    // vertices' columns of Y.
-    RowMajorMatrix Y = RowMajorMatrix::Zero(columns.size(), d * m);
-    for (int c = 0; c < d * m; ++c) {
-      if (starts[c] >= 0) Y(row_of[starts[c]], c) = 1.0;
+    *Y = RowMajorMatrix::Zero(columns.size(), B.cols());
+    for (int r = 0; r < d * m; ++r) {
+      if (starts[r] >= 0) Y->row(row_of[starts[r]]) = B.row(r);
     }
-    Eigen::VectorXd inverse_d(columns.size());
+    inverse_d->resize(columns.size());
     for (size_t k = 0; k < columns.size(); ++k) {
       const int j = columns[k];
       const int p = Lp[j];
-      inverse_d(k) = 1.0 / Lx[p];
-      const auto yj = Y.row(k);
-      for (int q = p + 1; q < p + Lnz[j]; ++q) Y.row(row_of[Li[q]]) -= Lx[q] * yj;
+      (*inverse_d)(k) = 1.0 / Lx[p];
+      const auto yj = Y->row(k);
+      for (int q = p + 1; q < p + Lnz[j]; ++q) Y->row(row_of[Li[q]]) -= Lx[q] * yj;
     }
     for (int j : columns) {
       mark[j] = 0;
       row_of[j] = -1;
     }
+  }
+
+  static std::vector<int> SortedUnique(std::vector<int> vertices) {
+    std::sort(vertices.begin(), vertices.end());
+    vertices.erase(std::unique(vertices.begin(), vertices.end()), vertices.end());
+    return vertices;
+  }
+
+  static int IndexIn(const std::vector<int>& query, int vertex) {
+    return static_cast<int>(std::lower_bound(query.begin(), query.end(), vertex) - query.begin());
+  }
+
+  std::vector<Eigen::MatrixXd> Covariances(const std::vector<std::vector<int>>& sets) const {
+    std::vector<int> all;
+    for (const std::vector<int>& set : sets) all.insert(all.end(), set.begin(), set.end());
+    const std::vector<int> query = SortedUnique(std::move(all));
+    const int m = static_cast<int>(query.size());
+    RowMajorMatrix Y;
+    Eigen::VectorXd inverse_d;
+    ForwardSolve(query, Eigen::MatrixXd::Identity(d * m, d * m), &Y, &inverse_d);
+    // A set's covariance is Y_set' D^-1 Y_set, with Y_set its poses' columns of Y.
     std::vector<Eigen::MatrixXd> covariances;
     for (const std::vector<int>& set : sets) {
       const int n = static_cast<int>(set.size());
-      Eigen::MatrixXd Y_set(columns.size(), d * n);
+      Eigen::MatrixXd Y_set(Y.rows(), d * n);
       for (int k = 0; k < n; ++k) {
-        const int u =
-            static_cast<int>(std::lower_bound(query.begin(), query.end(), set[k]) - query.begin());
-        Y_set.middleCols(k * d, d) = Y.middleCols(u * d, d);
+        Y_set.middleCols(k * d, d) = Y.middleCols(IndexIn(query, set[k]) * d, d);
       }
       covariances.push_back(Y_set.transpose() * inverse_d.asDiagonal() * Y_set);
     }
     return covariances;
+  }
+
+  std::vector<Eigen::MatrixXd> ProjectedCovariances(
+      const std::vector<CovarianceProjection>& projections) const {
+    std::vector<int> all;
+    for (const CovarianceProjection& p : projections) {
+      all.insert(all.end(), p.vertices.begin(), p.vertices.end());
+    }
+    const std::vector<int> query = SortedUnique(std::move(all));
+    // B: each projection's A in its own columns, on its poses' rows.
+    std::vector<int> first_column(projections.size() + 1, 0);
+    for (size_t g = 0; g < projections.size(); ++g) {
+      const CovarianceProjection& p = projections[g];
+      IRRR_CHECK(p.A.rows() == d * static_cast<int>(p.vertices.size()));
+      first_column[g + 1] = first_column[g] + static_cast<int>(p.A.cols());
+    }
+    Eigen::MatrixXd B = Eigen::MatrixXd::Zero(d * query.size(), first_column.back());
+    for (size_t g = 0; g < projections.size(); ++g) {
+      const CovarianceProjection& p = projections[g];
+      for (size_t k = 0; k < p.vertices.size(); ++k) {
+        B.block(IndexIn(query, p.vertices[k]) * d, first_column[g], d, p.A.cols()) +=
+            p.A.middleRows(k * d, d);
+      }
+    }
+    RowMajorMatrix Y;
+    Eigen::VectorXd inverse_d;
+    ForwardSolve(query, B, &Y, &inverse_d);
+    std::vector<Eigen::MatrixXd> out;
+    for (size_t g = 0; g < projections.size(); ++g) {
+      const auto Y_g = Y.middleCols(first_column[g], first_column[g + 1] - first_column[g]);
+      out.push_back(Y_g.transpose() * inverse_d.asDiagonal() * Y_g);
+    }
+    return out;
   }
 
   const PoseGraph<Pose>* graph;

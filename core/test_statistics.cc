@@ -71,45 +71,61 @@ double RobustVarianceFactor(const std::vector<RedundancySample>& samples) {
   return ratios.back().first;
 }
 
-namespace {
-
-// r' S^-1 r and, when asked, tr(C S^-1) / rows with S = C + sign * J Sigma J'
-// (LinearizeAddition: +1; LinearizeRemoval: -1). Each edge's rows of J are two d x d blocks (its
-// end poses), so J Sigma J' is summed block by block: the dense product cost d^3 n m^2 and held
-// most of the parking garage's time.
 template <class Pose>
-LinearizedAddition Linearize(const std::vector<const Edge<Pose>*>& edges,
-                             const std::vector<Pose>& estimate,
-                             const std::vector<int>& vertices,
-                             const Eigen::MatrixXd& covariance,
-                             double sign,
-                             bool with_redundancy) {
+StackedEdges<Pose> StackEdges(const std::vector<const Edge<Pose>*>& edges,
+                              const std::vector<Pose>& estimate,
+                              const std::vector<int>& vertices) {
   constexpr int d = Pose::kDim;
-  using Block = typename Pose::Matrix;
   const int n = static_cast<int>(edges.size());
-  const int m = static_cast<int>(vertices.size());
-  IRRR_CHECK(covariance.rows() == d * m && covariance.cols() == d * m);
   auto column_of = [&vertices](int v) {
     const auto it = std::find(vertices.begin(), vertices.end(), v);
     IRRR_CHECK(it != vertices.end());
     return static_cast<int>(it - vertices.begin()) * d;
   };
-  Eigen::VectorXd r(d * n);
-  std::vector<std::array<int, 2>> columns(n);
-  std::vector<std::array<Block, 2>> jacobians(n);
-  Eigen::MatrixXd S = Eigen::MatrixXd::Zero(d * n, d * n);
+  StackedEdges<Pose> out;
+  out.vertices = static_cast<int>(vertices.size());
+  out.r.resize(d * n);
+  out.C = Eigen::MatrixXd::Zero(d * n, d * n);
+  out.jacobians.resize(n);
+  out.columns.resize(n);
   for (int k = 0; k < n; ++k) {
     const Edge<Pose>& edge = *edges[k];
-    r.segment<d>(k * d) = RelativePoseResidual<Pose>(edge.measurement,
-                                                     estimate[edge.from],
-                                                     estimate[edge.to],
-                                                     &jacobians[k][0],
-                                                     &jacobians[k][1]);
-    columns[k] = {column_of(edge.from), column_of(edge.to)};
-    S.block<d, d>(k * d, k * d) = edge.information.inverse();
+    out.r.template segment<d>(k * d) = RelativePoseResidual<Pose>(edge.measurement,
+                                                                  estimate[edge.from],
+                                                                  estimate[edge.to],
+                                                                  &out.jacobians[k][0],
+                                                                  &out.jacobians[k][1]);
+    out.columns[k] = {column_of(edge.from), column_of(edge.to)};
+    out.C.template block<d, d>(k * d, k * d) = edge.information.inverse();
   }
-  Eigen::MatrixXd C;
-  if (with_redundancy) C = S;
+  return out;
+}
+
+template <class Pose>
+Eigen::MatrixXd StackedEdges<Pose>::TransposedJacobian() const {
+  constexpr int d = Pose::kDim;
+  const int n = static_cast<int>(jacobians.size());
+  Eigen::MatrixXd A = Eigen::MatrixXd::Zero(d * vertices, d * n);
+  for (int k = 0; k < n; ++k) {
+    A.template block<d, d>(columns[k][0], k * d) += jacobians[k][0].transpose();
+    A.template block<d, d>(columns[k][1], k * d) += jacobians[k][1].transpose();
+  }
+  return A;
+}
+
+// Each edge's rows of J are two d x d blocks (its end poses), so J Sigma J' is summed block by
+// block: the dense product cost d^3 n m^2 and held most of the parking garage's time.
+template <class Pose>
+Eigen::MatrixXd ProjectCovariance(const StackedEdges<Pose>& stack,
+                                  const Eigen::MatrixXd& covariance) {
+  constexpr int d = Pose::kDim;
+  using Block = typename Pose::Matrix;
+  const int n = static_cast<int>(stack.jacobians.size());
+  const int m = stack.vertices;
+  IRRR_CHECK(covariance.rows() == d * m && covariance.cols() == d * m);
+  const auto& jacobians = stack.jacobians;
+  const auto& columns = stack.columns;
+  Eigen::MatrixXd out = Eigen::MatrixXd::Zero(d * n, d * n);
   Eigen::Matrix<double, d, Eigen::Dynamic> J_sigma(d, d * m);  // J_k Sigma, edge k's rows
   for (int k = 0; k < n; ++k) {
     J_sigma.noalias() = jacobians[k][0] * covariance.middleRows<d>(columns[k][0]);
@@ -118,18 +134,32 @@ LinearizedAddition Linearize(const std::vector<const Edge<Pose>*>& edges,
       Block block = J_sigma.template middleCols<d>(columns[l][0]) * jacobians[l][0].transpose();
       block.noalias() +=
           J_sigma.template middleCols<d>(columns[l][1]) * jacobians[l][1].transpose();
-      S.block<d, d>(k * d, l * d) += sign * block;
+      out.block<d, d>(k * d, l * d) = block;
     }
   }
+  return out;
+}
+
+namespace {
+
+// r' S^-1 r and, when asked, tr(C S^-1) / rows with S = C + sign * J Sigma J'
+// (LinearizeAddition: +1; LinearizeRemoval: -1).
+template <class Pose>
+LinearizedAddition Statistic(const StackedEdges<Pose>& stack,
+                             const Eigen::MatrixXd& projected,
+                             double sign,
+                             bool with_redundancy) {
+  IRRR_CHECK(projected.rows() == stack.C.rows() && projected.cols() == stack.C.cols());
+  const Eigen::MatrixXd S = stack.C + sign * projected;
   const Eigen::LLT<Eigen::MatrixXd> llt(0.5 * (S + S.transpose()));
   LinearizedAddition out;
   if (llt.info() != Eigen::Success) {
     out.chi2_increase = out.redundancy = std::numeric_limits<double>::quiet_NaN();
     return out;
   }
-  out.chi2_increase = r.dot(llt.solve(r));
+  out.chi2_increase = stack.r.dot(llt.solve(stack.r));
   if (with_redundancy) {
-    out.redundancy = llt.solve(C).trace() / (d * n);  // tr(S^-1 C) = tr(C S^-1)
+    out.redundancy = llt.solve(stack.C).trace() / stack.r.size();  // tr(S^-1 C) = tr(C S^-1)
   }
   return out;
 }
@@ -137,11 +167,23 @@ LinearizedAddition Linearize(const std::vector<const Edge<Pose>*>& edges,
 }  // namespace
 
 template <class Pose>
+LinearizedAddition AdditionStatistic(const StackedEdges<Pose>& stack,
+                                     const Eigen::MatrixXd& projected) {
+  return Statistic(stack, projected, 1.0, true);
+}
+
+template <class Pose>
+double RemovalStatistic(const StackedEdges<Pose>& stack, const Eigen::MatrixXd& projected) {
+  return Statistic(stack, projected, -1.0, false).chi2_increase;
+}
+
+template <class Pose>
 LinearizedAddition LinearizeAddition(const std::vector<const Edge<Pose>*>& edges,
                                      const std::vector<Pose>& estimate,
                                      const std::vector<int>& vertices,
                                      const Eigen::MatrixXd& covariance) {
-  return Linearize(edges, estimate, vertices, covariance, 1.0, true);
+  const StackedEdges<Pose> stack = StackEdges(edges, estimate, vertices);
+  return AdditionStatistic(stack, ProjectCovariance(stack, covariance));
 }
 
 template <class Pose>
@@ -149,8 +191,22 @@ double LinearizeRemoval(const std::vector<const Edge<Pose>*>& edges,
                         const std::vector<Pose>& estimate,
                         const std::vector<int>& vertices,
                         const Eigen::MatrixXd& covariance) {
-  return Linearize(edges, estimate, vertices, covariance, -1.0, false).chi2_increase;
+  const StackedEdges<Pose> stack = StackEdges(edges, estimate, vertices);
+  return RemovalStatistic(stack, ProjectCovariance(stack, covariance));
 }
+
+#define IRRR_INSTANTIATE_STACKED(Pose)                                                           \
+  template struct StackedEdges<Pose>;                                                            \
+  template StackedEdges<Pose> StackEdges<Pose>(                                                  \
+      const std::vector<const Edge<Pose>*>&, const std::vector<Pose>&, const std::vector<int>&); \
+  template Eigen::MatrixXd ProjectCovariance<Pose>(const StackedEdges<Pose>&,                    \
+                                                   const Eigen::MatrixXd&);                      \
+  template LinearizedAddition AdditionStatistic<Pose>(const StackedEdges<Pose>&,                 \
+                                                      const Eigen::MatrixXd&);                   \
+  template double RemovalStatistic<Pose>(const StackedEdges<Pose>&, const Eigen::MatrixXd&);
+IRRR_INSTANTIATE_STACKED(Pose2)
+IRRR_INSTANTIATE_STACKED(Pose3)
+#undef IRRR_INSTANTIATE_STACKED
 
 template LinearizedAddition LinearizeAddition<Pose2>(const std::vector<const Edge<Pose2>*>&,
                                                      const std::vector<Pose2>&,

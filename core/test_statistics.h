@@ -13,6 +13,7 @@
 //    linear-Gaussian problem it equals the chi2 increase of the optimum exactly; on a pose graph
 //    it costs a few sparse solves instead of a nonlinear optimization.
 
+#include <array>
 #include <limits>
 #include <vector>
 
@@ -82,6 +83,36 @@ LinearizedAddition LinearizeAddition(const std::vector<const Edge<Pose>*>& edges
                                      const std::vector<Pose>& estimate,
                                      const std::vector<int>& vertices,
                                      const Eigen::MatrixXd& covariance);
+
+// The same statistics in two steps, for a caller that gets J Sigma J' some other way (from a
+// factorization, without Sigma itself: IncrementalSolver::ProjectedCovariances with A = J'):
+// the edges stacked at `estimate` (their residuals, C and Jacobians, against `vertices`), then
+// the statistic from J Sigma J'.
+template <class Pose>
+struct StackedEdges {
+  Eigen::VectorXd r;                                            // d*n
+  Eigen::MatrixXd C;                                            // blockdiag(Omega^-1), d*n x d*n
+  std::vector<std::array<typename Pose::Matrix, 2>> jacobians;  // per edge: from, to
+  std::vector<std::array<int, 2>> columns;  // per edge: its end poses' first columns in Sigma
+  int vertices = 0;                         // m
+
+  // J' (d*m x d*n), dense.
+  Eigen::MatrixXd TransposedJacobian() const;
+};
+template <class Pose>
+StackedEdges<Pose> StackEdges(const std::vector<const Edge<Pose>*>& edges,
+                              const std::vector<Pose>& estimate,
+                              const std::vector<int>& vertices);
+// J Sigma J' from Sigma (d*m x d*m).
+template <class Pose>
+Eigen::MatrixXd ProjectCovariance(const StackedEdges<Pose>& stack,
+                                  const Eigen::MatrixXd& covariance);
+// LinearizeAddition and LinearizeRemoval from J Sigma J' (`projected`, d*n x d*n).
+template <class Pose>
+LinearizedAddition AdditionStatistic(const StackedEdges<Pose>& stack,
+                                     const Eigen::MatrixXd& projected);
+template <class Pose>
+double RemovalStatistic(const StackedEdges<Pose>& stack, const Eigen::MatrixXd& projected);
 
 // Removing `edges` from a least-squares problem whose optimum with them is `estimate`, to first
 // order: r' S^-1 r with S = C - J Sigma J', Sigma the poses' covariance with the edges in. The

@@ -196,10 +196,11 @@ TEMPLATE_TEST_CASE(
   CHECK(lazy.ExactChi2() - bent_optimum <= tolerance);
 }
 
-TEMPLATE_TEST_CASE("Marginal covariances equal the inverse of J'WJ at the estimate",
-                   "[incremental]",
-                   Pose2,
-                   Pose3) {
+TEMPLATE_TEST_CASE(
+    "Marginal covariances and their projections equal the inverse of J'WJ at the estimate",
+    "[incremental]",
+    Pose2,
+    Pose3) {
   const auto synthetic = MakeSyntheticGraph<TestType>(NoisyOptions<TestType>(3));
   const PoseGraph<TestType>& graph = synthetic.graph;
   const bool lazy = GENERATE(false, true);
@@ -213,10 +214,26 @@ TEMPLATE_TEST_CASE("Marginal covariances equal the inverse of J'WJ at the estima
   const int n = graph.num_vertices();
   const std::vector<std::vector<int>> queries = {
       {n - 1}, {0, n / 2}, {n / 3, n - 2, 5}, {17, 18, 19, 250}};
+  // Projections A (d*m x k, k = 2 and 5: fewer and more columns than one pose's d), with
+  // entries -2 .. 2, for A' Sigma A from one recovery (ProjectedCovariances).
+  std::vector<CovarianceProjection> projections;
+  for (size_t k = 0; k < queries.size(); ++k) {
+    const int rows = TestType::kDim * static_cast<int>(queries[k].size());
+    const int columns = k % 2 == 0 ? 2 : 5;
+    Eigen::MatrixXd A(rows, columns);
+    for (int i = 0; i < rows; ++i) {
+      for (int j = 0; j < columns; ++j) {
+        A(i, j) = static_cast<double>((7 * i + 3 * j + k) % 5) - 2.0;
+      }
+    }
+    projections.push_back({queries[k], A});
+  }
   auto check = [&](double tolerance) {
     // Each query alone, and all of them from one recovery (Covariances).
     const std::vector<Eigen::MatrixXd> together = solver.Covariances(queries);
+    const std::vector<Eigen::MatrixXd> projected = solver.ProjectedCovariances(projections);
     REQUIRE(together.size() == queries.size());
+    REQUIRE(projected.size() == queries.size());
     for (size_t k = 0; k < queries.size(); ++k) {
       const std::vector<int>& query = queries[k];
       Eigen::MatrixXd expected;
@@ -229,6 +246,12 @@ TEMPLATE_TEST_CASE("Marginal covariances equal the inverse of J'WJ at the estima
       REQUIRE(together[k].rows() == covariance.rows());
       CHECK((together[k] - expected).cwiseAbs().maxCoeff() <=
             tolerance * expected.cwiseAbs().maxCoeff());
+      // A' Sigma A, from the same factor as Sigma: equal to rounding.
+      const Eigen::MatrixXd& A = projections[k].A;
+      const Eigen::MatrixXd expected_projected = A.transpose() * covariance * A;
+      REQUIRE(projected[k].rows() == A.cols());
+      CHECK((projected[k] - expected_projected).cwiseAbs().maxCoeff() <=
+            kCovarianceTolerance * expected_projected.cwiseAbs().maxCoeff());
     }
   };
   // Built pose by pose: the factor's linearization points lag the estimate.

@@ -196,6 +196,12 @@ TEMPLATE_TEST_CASE(
   REQUIRE(optimizer.FactorizeAt(graph, good, x));
   REQUIRE(optimizer.Covariance(vertices, &covariance));
   const double added = LinearizeAddition<TestType>(edges, x, vertices, covariance).chi2_increase;
+  // The same from J Sigma J' as a factorization gives it without Sigma (A' Sigma A with A = J',
+  // the warm engine's way: IncrementalSolver::ProjectedCovariances).
+  const StackedEdges<TestType> stack = StackEdges<TestType>(edges, x, vertices);
+  Eigen::MatrixXd A = stack.TransposedJacobian();
+  const double added_projected =
+      AdditionStatistic(stack, A.transpose() * covariance * A).chi2_increase;
   const std::vector<char> all(graph.num_edges(), 1);
   const OptimizerSummary joint = optimizer.Solve(graph, all, &x);
   REQUIRE(joint.termination == TerminationType::kConvergence);
@@ -203,10 +209,16 @@ TEMPLATE_TEST_CASE(
   REQUIRE(optimizer.FactorizeAt(graph, all, x));
   REQUIRE(optimizer.Covariance(vertices, &covariance));
   const double removed = LinearizeRemoval<TestType>(edges, x, vertices, covariance);
-  INFO("exact " << exact << ", linearized addition " << added << ", removal " << removed);
+  const StackedEdges<TestType> joint_stack = StackEdges<TestType>(edges, x, vertices);
+  A = joint_stack.TransposedJacobian();
+  const double removed_projected = RemovalStatistic(joint_stack, A.transpose() * covariance * A);
+  INFO("exact " << exact << ", linearized addition " << added << " (projected " << added_projected
+                << "), removal " << removed << " (projected " << removed_projected << ")");
   CHECK(exact > 0.1);
   CHECK(added == Approx(exact).epsilon(1e-5));
   CHECK(removed == Approx(exact).epsilon(1e-5));
+  CHECK(added_projected == Approx(exact).epsilon(1e-5));
+  CHECK(removed_projected == Approx(exact).epsilon(1e-5));
 }
 
 TEMPLATE_TEST_CASE(
