@@ -259,6 +259,99 @@ struct IncrementalSolver<Pose>::Impl {
     return total;
   }
 
+  // P H P' from the edges' terms: its upper triangle in the factor's order (`position`), each
+  // column's rows sorted, identity on the free places. Given H and the order, CHOLMOD would
+  // permute H with two transposes at every factorization (a tenth of a reversal-heavy run), and
+  // its triplet form needs a sort; assembled in place, H is factorized as it comes. A pose's
+  // column block holds the blocks of its neighbours ordered before it, then the upper triangle of
+  // its own (a pose's variables keep their order in the factor's). nullptr: out of memory.
+  cholmod_sparse* AssemblePermuted(const std::vector<Term>& terms) {
+    const int used = static_cast<int>(vertex_of_slot.size());
+    const int n = capacity * d;
+    std::vector<int> pose_at(capacity);  // a place's pose in the factor's order
+    std::vector<int> place_at(capacity);
+    for (int s = 0; s < capacity; ++s) {
+      pose_at[s] = position[s * d] / d;
+      place_at[pose_at[s]] = s;
+    }
+    // Per place: the poses (in the factor's order) of its neighbours ordered before it.
+    std::vector<std::vector<int>> before(used);
+    for (const Term& t : terms) {
+      if (t.slot_from < 0 || t.slot_to < 0) continue;
+      const int a = pose_at[t.slot_from];
+      const int c = pose_at[t.slot_to];
+      if (a < c) {
+        before[t.slot_to].push_back(a);
+      } else {
+        before[t.slot_from].push_back(c);
+      }
+    }
+    size_t entries = static_cast<size_t>(n - used * d);  // the free places' diagonal
+    for (std::vector<int>& poses : before) {
+      std::sort(poses.begin(), poses.end());
+      poses.erase(std::unique(poses.begin(), poses.end()), poses.end());
+      entries += poses.size() * d * d + d * (d + 1) / 2;
+    }
+    cholmod_sparse* A = cholmod_allocate_sparse(n, n, entries, 1, 1, 1, CHOLMOD_REAL, &common);
+    if (A == nullptr) return nullptr;
+    int* Ap = static_cast<int*>(A->p);
+    int* Ai = static_cast<int*>(A->i);
+    double* Ax = static_cast<double*>(A->x);
+    int k = 0;
+    for (int pose = 0; pose < capacity; ++pose) {
+      const int s = place_at[pose];
+      for (int c = 0; c < d; ++c) {
+        Ap[pose * d + c] = k;
+        if (s >= used) {
+          Ai[k] = pose * d + c;
+          Ax[k++] = 1.0;
+          continue;
+        }
+        for (int q : before[s]) {
+          for (int a = 0; a < d; ++a) {
+            Ai[k] = q * d + a;
+            Ax[k++] = 0.0;
+          }
+        }
+        for (int a = 0; a <= c; ++a) {
+          Ai[k] = pose * d + a;
+          Ax[k++] = 0.0;
+        }
+      }
+    }
+    Ap[n] = k;
+    // Adds `block` (rows: place row_slot's variables, columns: place column_slot's) where the
+    // factor's order puts it; a diagonal block's upper triangle only.
+    auto add_block = [&](int row_slot, int column_slot, const Matrix& block) {
+      const int column_pose = pose_at[column_slot];
+      const std::vector<int>& poses = before[column_slot];
+      const int offset =
+          row_slot == column_slot
+              ? static_cast<int>(poses.size()) * d
+              : static_cast<int>(std::lower_bound(poses.begin(), poses.end(), pose_at[row_slot]) -
+                                 poses.begin()) *
+                    d;
+      for (int c = 0; c < d; ++c) {
+        double* column = Ax + Ap[column_pose * d + c] + offset;
+        const int rows = row_slot == column_slot ? c + 1 : d;
+        for (int a = 0; a < rows; ++a) column[a] += block(a, c);
+      }
+    };
+    for (const Term& t : terms) {
+      if (t.slot_from >= 0) add_block(t.slot_from, t.slot_from, t.J_from.transpose() * t.J_from);
+      if (t.slot_to >= 0) add_block(t.slot_to, t.slot_to, t.J_to.transpose() * t.J_to);
+      if (t.slot_from >= 0 && t.slot_to >= 0) {
+        const Matrix cross = t.J_from.transpose() * t.J_to;
+        if (pose_at[t.slot_from] < pose_at[t.slot_to]) {
+          add_block(t.slot_from, t.slot_to, cross);
+        } else {
+          add_block(t.slot_to, t.slot_from, cross.transpose());
+        }
+      }
+    }
+    return A;
+  }
+
   // Linearizes every edge at x (which becomes x_lin), orders the poses afresh (AMD on the pose
   // graph, the free places last) and factorizes. delta is zero afterwards. With `grow`, the free
   // places are replenished (never during a trial, whose saved vectors keep their size).
@@ -331,59 +424,12 @@ struct IncrementalSolver<Pose>::Impl {
       }
     }
 
-    // P H P' at x_lin (upper triangle, in the factor's order), identity on the free places. Given
-    // H and the order, CHOLMOD would permute H with two transposes at every factorization (a
-    // tenth of a reversal-heavy run); assembled permuted, H is factorized as it comes, by the
-    // same arithmetic.
+    // The edges' terms at x_lin: b, and P H P'.
     std::vector<Term> terms;
     terms.reserve(edges.size());
     for (int e : edges) terms.push_back(Linearize(e));
-    const size_t max_entries = terms.size() * 3 * d * d + static_cast<size_t>(n);
-    cholmod_triplet* triplet =
-        cholmod_allocate_triplet(n, n, max_entries, 1, CHOLMOD_REAL, &common);
-    if (triplet == nullptr) return false;
-    int* ti = static_cast<int*>(triplet->i);
-    int* tj = static_cast<int*>(triplet->j);
-    double* tx = static_cast<double*>(triplet->x);
-    size_t count = 0;
-    auto add_block = [&](int row_slot, int column_slot, const Matrix& block) {
-      for (int a = 0; a < d; ++a) {
-        for (int c = 0; c < d; ++c) {
-          const int row = row_slot * d + a;
-          const int column = column_slot * d + c;
-          if (row > column) continue;
-          // A pose's own variables keep their order in the factor's: the lower triangle of a
-          // diagonal block stays out.
-          const int i = position[row];
-          const int j = position[column];
-          ti[count] = std::min(i, j);
-          tj[count] = std::max(i, j);
-          tx[count] = block(a, c);
-          ++count;
-        }
-      }
-    };
-    for (const Term& t : terms) {
-      AccumulateRightHandSide(t, 1.0);
-      if (t.slot_from >= 0) add_block(t.slot_from, t.slot_from, t.J_from.transpose() * t.J_from);
-      if (t.slot_to >= 0) add_block(t.slot_to, t.slot_to, t.J_to.transpose() * t.J_to);
-      if (t.slot_from >= 0 && t.slot_to >= 0) {
-        const Matrix cross = t.J_from.transpose() * t.J_to;
-        if (t.slot_from < t.slot_to) {
-          add_block(t.slot_from, t.slot_to, cross);
-        } else {
-          add_block(t.slot_to, t.slot_from, cross.transpose());
-        }
-      }
-    }
-    for (int k = used * d; k < n; ++k) {
-      ti[count] = tj[count] = position[k];
-      tx[count] = 1.0;
-      ++count;
-    }
-    triplet->nnz = count;
-    cholmod_sparse* A = cholmod_triplet_to_sparse(triplet, static_cast<size_t>(count), &common);
-    cholmod_free_triplet(&triplet, &common);
+    for (const Term& t : terms) AccumulateRightHandSide(t, 1.0);
+    cholmod_sparse* A = AssemblePermuted(terms);
     if (A == nullptr) return false;
     FreeFactor();
     // Supernodal where CHOLMOD judges it faster (3D graphs: six times), then converted to the
