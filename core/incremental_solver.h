@@ -24,7 +24,8 @@
 //
 // Marginal covariances come from the same factor: with P A P' = L D L', the covariance of
 // variables i and j is y_i' D^-1 y_j, y = L^-1 P e; y is nonzero only on the elimination-tree path
-// from i to the root, so a few poses cost a few short sparse solves.
+// from i to the root, so a few poses cost a few short sparse solves. A projection A' Sigma A (a
+// set of edges' J Sigma J', A = J') is Y' D^-1 Y with Y = L^-1 P A: one solve per column of A.
 //
 // A change can be tried and taken back: Checkpoint() starts a trial, Rollback() returns to the
 // checkpoint (estimate, linear system and factor), Commit() keeps the trial.

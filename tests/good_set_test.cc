@@ -92,5 +92,66 @@ TEMPLATE_TEST_CASE("A good set rebuilt while its components are kept is restored
   CHECK(GoodChi2(good, 2) == chi2_without);
 }
 
+TEMPLATE_TEST_CASE("A good set's linearized statistics are those of its poses' marginal covariance",
+                   "[good_set]",
+                   Pose2,
+                   Pose3) {
+  // LinearizeEach and LinearizeRemovals read J Sigma J' from the factor without Sigma
+  // (ProjectedCovariances, 32 loops per recovery); the reference takes Sigma itself from the same
+  // factor (Covariance) and projects it. 40 loops left out go through two recoveries.
+  const auto synthetic = MakeSyntheticGraph<TestType>(NoisyOptions<TestType>(11));
+  const PoseGraph<TestType>& graph = synthetic.graph;
+  REQUIRE(synthetic.loop_edges.size() > 60);
+  const std::vector<int> out(synthetic.loop_edges.end() - 40, synthetic.loop_edges.end());
+  const std::vector<int> in(synthetic.loop_edges.begin(), synthetic.loop_edges.end() - 40);
+  std::vector<TestType> estimate;
+  GoodSet<TestType> good(&graph, &estimate, IncrementalSolverOptions());
+  for (int v = 0; v < graph.num_vertices(); ++v) good.AddPose(v);
+  good.Rebuild(in, kAlignmentCap);
+  const IncrementalSolver<TestType>& solver = good.Solver(good.ComponentOf(0));
+  // Each loop's ends, each once, and its edges, as LinearizeAddition takes them.
+  auto ends_of = [&graph](const std::vector<int>& loops) {
+    std::vector<int> ends;
+    for (int e : loops) {
+      for (int v : {graph.edge(e).from, graph.edge(e).to}) {
+        if (std::find(ends.begin(), ends.end(), v) == ends.end()) ends.push_back(v);
+      }
+    }
+    return ends;
+  };
+  auto edges_of = [&graph](const std::vector<int>& loops) {
+    std::vector<const Edge<TestType>*> edges;
+    for (int e : loops) edges.push_back(&graph.edge(e));
+    return edges;
+  };
+
+  const std::vector<LinearizedAddition> each = good.LinearizeEach(out);
+  REQUIRE(each.size() == out.size());
+  for (size_t k = 0; k < out.size(); ++k) {
+    const std::vector<int> ends = ends_of({out[k]});
+    const LinearizedAddition expected =
+        LinearizeAddition<TestType>(edges_of({out[k]}), estimate, ends, solver.Covariance(ends));
+    INFO("loop " << out[k] << ": " << each[k].chi2_increase << " against "
+                 << expected.chi2_increase);
+    CHECK(expected.chi2_increase > 0.0);
+    CHECK(each[k].chi2_increase == Approx(expected.chi2_increase).epsilon(1e-9));
+    CHECK(each[k].redundancy == Approx(expected.redundancy).epsilon(1e-9));
+  }
+
+  // Groups of the good set's loops: one, three consecutive ones, and the first and last.
+  const std::vector<std::vector<int>> groups = {
+      {in[5]}, {in[10], in[11], in[12]}, {in.front(), in.back()}};
+  const std::vector<double> removals = good.LinearizeRemovals(groups);
+  REQUIRE(removals.size() == groups.size());
+  for (size_t k = 0; k < groups.size(); ++k) {
+    const std::vector<int> ends = ends_of(groups[k]);
+    const double expected =
+        LinearizeRemoval<TestType>(edges_of(groups[k]), estimate, ends, solver.Covariance(ends));
+    INFO("group " << k << ": " << removals[k] << " against " << expected);
+    CHECK(expected > 0.0);
+    CHECK(removals[k] == Approx(expected).epsilon(1e-9));
+  }
+}
+
 }  // namespace
 }  // namespace irrr
