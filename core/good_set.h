@@ -46,6 +46,9 @@ class GoodSet {
   // Every session's component, numbered 0, 1, ... by earliest session.
   std::vector<int> Components() const;
 
+  // The joint marginal covariance of each set of poses, all of one component
+  // (IncrementalSolver::Covariances), that of the open trial's if they are in it.
+  std::vector<Eigen::MatrixXd> Covariances(const std::vector<std::vector<int>>& sets) const;
   // A' Sigma A for each projection, all of one component (IncrementalSolver::
   // ProjectedCovariances), from the open trial's factorization if its poses are in it.
   std::vector<Eigen::MatrixXd> ProjectedCovariances(

@@ -737,10 +737,11 @@ struct IncrementalSolver<Pose>::Impl {
 
   // Y = L^-1 P B and D^-1, on the rows of the elimination-tree paths from the variables of
   // `query` (sorted, each once) to the root, where Y can be nonzero: B holds d rows per queried
-  // pose (the anchor's are not read: it is fixed) and is zero on every other pose. The
-  // covariance of the queried poses' variables is then Y' D^-1 Y (P A P' = L D L').
+  // pose (the anchor's are not read: it is fixed) and is zero on every other pose; nullptr: the
+  // identity (a large cluster's would take tens of megabytes). The covariance of the queried
+  // poses' variables is then Y' D^-1 Y (P A P' = L D L').
   void ForwardSolve(const std::vector<int>& query,
-                    const Eigen::MatrixXd& B,
+                    const Eigen::MatrixXd* B,
                     RowMajorMatrix* Y,
                     Eigen::VectorXd* inverse_d) const {
     const int m = static_cast<int>(query.size());
@@ -768,9 +769,14 @@ struct IncrementalSolver<Pose>::Impl {
     std::sort(columns.begin(), columns.end());
     row_of.resize(factor->n, -1);
     for (size_t k = 0; k < columns.size(); ++k) row_of[columns[k]] = static_cast<int>(k);
-    *Y = RowMajorMatrix::Zero(columns.size(), B.cols());
+    *Y = RowMajorMatrix::Zero(columns.size(), B != nullptr ? B->cols() : d * m);
     for (int r = 0; r < d * m; ++r) {
-      if (starts[r] >= 0) Y->row(row_of[starts[r]]) = B.row(r);
+      if (starts[r] < 0) continue;
+      if (B != nullptr) {
+        Y->row(row_of[starts[r]]) = B->row(r);
+      } else {
+        (*Y)(row_of[starts[r]], r) = 1.0;
+      }
     }
     inverse_d->resize(columns.size());
     for (size_t k = 0; k < columns.size(); ++k) {
@@ -800,10 +806,9 @@ struct IncrementalSolver<Pose>::Impl {
     std::vector<int> all;
     for (const std::vector<int>& set : sets) all.insert(all.end(), set.begin(), set.end());
     const std::vector<int> query = SortedUnique(std::move(all));
-    const int m = static_cast<int>(query.size());
     RowMajorMatrix Y;
     Eigen::VectorXd inverse_d;
-    ForwardSolve(query, Eigen::MatrixXd::Identity(d * m, d * m), &Y, &inverse_d);
+    ForwardSolve(query, nullptr, &Y, &inverse_d);
     // A set's covariance is Y_set' D^-1 Y_set, with Y_set its poses' columns of Y.
     std::vector<Eigen::MatrixXd> covariances;
     for (const std::vector<int>& set : sets) {
@@ -841,7 +846,7 @@ struct IncrementalSolver<Pose>::Impl {
     }
     RowMajorMatrix Y;
     Eigen::VectorXd inverse_d;
-    ForwardSolve(query, B, &Y, &inverse_d);
+    ForwardSolve(query, &B, &Y, &inverse_d);
     std::vector<Eigen::MatrixXd> out;
     for (size_t g = 0; g < projections.size(); ++g) {
       const auto Y_g = Y.middleCols(first_column[g], first_column[g + 1] - first_column[g]);

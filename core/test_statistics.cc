@@ -6,6 +6,7 @@
 #include <limits>
 #include <map>
 #include <tuple>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Cholesky>
@@ -85,7 +86,7 @@ StackedEdges<Pose> StackEdges(const std::vector<const Edge<Pose>*>& edges,
   StackedEdges<Pose> out;
   out.vertices = static_cast<int>(vertices.size());
   out.r.resize(d * n);
-  out.C = Eigen::MatrixXd::Zero(d * n, d * n);
+  out.C.resize(n);
   out.jacobians.resize(n);
   out.columns.resize(n);
   for (int k = 0; k < n; ++k) {
@@ -96,7 +97,7 @@ StackedEdges<Pose> StackEdges(const std::vector<const Edge<Pose>*>& edges,
                                                                   &out.jacobians[k][0],
                                                                   &out.jacobians[k][1]);
     out.columns[k] = {column_of(edge.from), column_of(edge.to)};
-    out.C.template block<d, d>(k * d, k * d) = edge.information.inverse();
+    out.C[k] = edge.information.inverse();
   }
   return out;
 }
@@ -146,11 +147,16 @@ namespace {
 // (LinearizeAddition: +1; LinearizeRemoval: -1).
 template <class Pose>
 LinearizedAddition Statistic(const StackedEdges<Pose>& stack,
-                             const Eigen::MatrixXd& projected,
+                             Eigen::MatrixXd projected,
                              double sign,
                              bool with_redundancy) {
-  IRRR_CHECK(projected.rows() == stack.C.rows() && projected.cols() == stack.C.cols());
-  const Eigen::MatrixXd S = stack.C + sign * projected;
+  constexpr int d = Pose::kDim;
+  const int rows = static_cast<int>(stack.r.size());
+  IRRR_CHECK(projected.rows() == rows && projected.cols() == rows);
+  // S in place of J Sigma J' (a large cluster's are tens of megabytes).
+  Eigen::MatrixXd& S = projected;
+  S *= sign;
+  for (size_t k = 0; k < stack.C.size(); ++k) S.block<d, d>(k * d, k * d) += stack.C[k];
   const Eigen::LLT<Eigen::MatrixXd> llt(0.5 * (S + S.transpose()));
   LinearizedAddition out;
   if (llt.info() != Eigen::Success) {
@@ -159,7 +165,9 @@ LinearizedAddition Statistic(const StackedEdges<Pose>& stack,
   }
   out.chi2_increase = stack.r.dot(llt.solve(stack.r));
   if (with_redundancy) {
-    out.redundancy = llt.solve(stack.C).trace() / stack.r.size();  // tr(S^-1 C) = tr(C S^-1)
+    Eigen::MatrixXd C = Eigen::MatrixXd::Zero(rows, rows);
+    for (size_t k = 0; k < stack.C.size(); ++k) C.block<d, d>(k * d, k * d) = stack.C[k];
+    out.redundancy = llt.solve(C).trace() / rows;  // tr(S^-1 C) = tr(C S^-1)
   }
   return out;
 }
@@ -167,14 +175,13 @@ LinearizedAddition Statistic(const StackedEdges<Pose>& stack,
 }  // namespace
 
 template <class Pose>
-LinearizedAddition AdditionStatistic(const StackedEdges<Pose>& stack,
-                                     const Eigen::MatrixXd& projected) {
-  return Statistic(stack, projected, 1.0, true);
+LinearizedAddition AdditionStatistic(const StackedEdges<Pose>& stack, Eigen::MatrixXd projected) {
+  return Statistic(stack, std::move(projected), 1.0, true);
 }
 
 template <class Pose>
-double RemovalStatistic(const StackedEdges<Pose>& stack, const Eigen::MatrixXd& projected) {
-  return Statistic(stack, projected, -1.0, false).chi2_increase;
+double RemovalStatistic(const StackedEdges<Pose>& stack, Eigen::MatrixXd projected) {
+  return Statistic(stack, std::move(projected), -1.0, false).chi2_increase;
 }
 
 template <class Pose>
@@ -195,15 +202,14 @@ double LinearizeRemoval(const std::vector<const Edge<Pose>*>& edges,
   return RemovalStatistic(stack, ProjectCovariance(stack, covariance));
 }
 
-#define IRRR_INSTANTIATE_STACKED(Pose)                                                           \
-  template struct StackedEdges<Pose>;                                                            \
-  template StackedEdges<Pose> StackEdges<Pose>(                                                  \
-      const std::vector<const Edge<Pose>*>&, const std::vector<Pose>&, const std::vector<int>&); \
-  template Eigen::MatrixXd ProjectCovariance<Pose>(const StackedEdges<Pose>&,                    \
-                                                   const Eigen::MatrixXd&);                      \
-  template LinearizedAddition AdditionStatistic<Pose>(const StackedEdges<Pose>&,                 \
-                                                      const Eigen::MatrixXd&);                   \
-  template double RemovalStatistic<Pose>(const StackedEdges<Pose>&, const Eigen::MatrixXd&);
+#define IRRR_INSTANTIATE_STACKED(Pose)                                                             \
+  template struct StackedEdges<Pose>;                                                              \
+  template StackedEdges<Pose> StackEdges<Pose>(                                                    \
+      const std::vector<const Edge<Pose>*>&, const std::vector<Pose>&, const std::vector<int>&);   \
+  template Eigen::MatrixXd ProjectCovariance<Pose>(const StackedEdges<Pose>&,                      \
+                                                   const Eigen::MatrixXd&);                        \
+  template LinearizedAddition AdditionStatistic<Pose>(const StackedEdges<Pose>&, Eigen::MatrixXd); \
+  template double RemovalStatistic<Pose>(const StackedEdges<Pose>&, Eigen::MatrixXd);
 IRRR_INSTANTIATE_STACKED(Pose2)
 IRRR_INSTANTIATE_STACKED(Pose3)
 #undef IRRR_INSTANTIATE_STACKED

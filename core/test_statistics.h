@@ -86,12 +86,12 @@ LinearizedAddition LinearizeAddition(const std::vector<const Edge<Pose>*>& edges
 
 // The same statistics in two steps, for a caller that gets J Sigma J' some other way (from a
 // factorization, without Sigma itself: IncrementalSolver::ProjectedCovariances with A = J'):
-// the edges stacked at `estimate` (their residuals, C and Jacobians, against `vertices`), then
-// the statistic from J Sigma J'.
+// the edges stacked at `estimate` (their residuals, C's blocks and Jacobians, against
+// `vertices`), then the statistic from J Sigma J'.
 template <class Pose>
 struct StackedEdges {
   Eigen::VectorXd r;                                            // d*n
-  Eigen::MatrixXd C;                                            // blockdiag(Omega^-1), d*n x d*n
+  std::vector<typename Pose::Matrix> C;                         // per edge: Omega^-1
   std::vector<std::array<typename Pose::Matrix, 2>> jacobians;  // per edge: from, to
   std::vector<std::array<int, 2>> columns;  // per edge: its end poses' first columns in Sigma
   int vertices = 0;                         // m
@@ -107,12 +107,12 @@ StackedEdges<Pose> StackEdges(const std::vector<const Edge<Pose>*>& edges,
 template <class Pose>
 Eigen::MatrixXd ProjectCovariance(const StackedEdges<Pose>& stack,
                                   const Eigen::MatrixXd& covariance);
-// LinearizeAddition and LinearizeRemoval from J Sigma J' (`projected`, d*n x d*n).
+// LinearizeAddition and LinearizeRemoval from J Sigma J' (`projected`, d*n x d*n; its storage
+// serves for S).
 template <class Pose>
-LinearizedAddition AdditionStatistic(const StackedEdges<Pose>& stack,
-                                     const Eigen::MatrixXd& projected);
+LinearizedAddition AdditionStatistic(const StackedEdges<Pose>& stack, Eigen::MatrixXd projected);
 template <class Pose>
-double RemovalStatistic(const StackedEdges<Pose>& stack, const Eigen::MatrixXd& projected);
+double RemovalStatistic(const StackedEdges<Pose>& stack, Eigen::MatrixXd projected);
 
 // Removing `edges` from a least-squares problem whose optimum with them is `estimate`, to first
 // order: r' S^-1 r with S = C - J Sigma J', Sigma the poses' covariance with the edges in. The
