@@ -97,13 +97,24 @@ TEMPLATE_TEST_CASE("A good set's linearized statistics are those of its poses' m
                    Pose2,
                    Pose3) {
   // LinearizeEach and LinearizeRemovals read J Sigma J' from the factor without Sigma
-  // (ProjectedCovariances, 32 loops per recovery); the reference takes Sigma itself from the same
-  // factor (Covariance) and projects it. 40 loops left out go through two recoveries.
+  // (ProjectedCovariances, 32 loops per recovery) where that takes fewer solves, Sigma otherwise
+  // (links sharing poses); the reference takes Sigma itself from the same factor (Covariance)
+  // and projects it. 40 loops left out go through two recoveries.
   const auto synthetic = MakeSyntheticGraph<TestType>(NoisyOptions<TestType>(11));
-  const PoseGraph<TestType>& graph = synthetic.graph;
+  PoseGraph<TestType> graph = synthetic.graph;
   REQUIRE(synthetic.loop_edges.size() > 60);
   const std::vector<int> out(synthetic.loop_edges.end() - 40, synthetic.loop_edges.end());
-  const std::vector<int> in(synthetic.loop_edges.begin(), synthetic.loop_edges.end() - 40);
+  std::vector<int> in(synthetic.loop_edges.begin(), synthetic.loop_edges.end() - 40);
+  const int last_in = in.back();
+  // Two more measurements of the loop in[5], in the good set: three links on two poses.
+  std::vector<int> shared = {in[5]};
+  for (int copy = 0; copy < 2; ++copy) {
+    const Edge<TestType> loop = graph.edge(in[5]);
+    int e = -1;
+    REQUIRE(graph.AddLoop(loop.from, loop.to, loop.measurement, loop.information, &e).ok());
+    shared.push_back(e);
+    in.push_back(e);
+  }
   std::vector<TestType> estimate;
   GoodSet<TestType> good(&graph, &estimate, IncrementalSolverOptions());
   for (int v = 0; v < graph.num_vertices(); ++v) good.AddPose(v);
@@ -138,18 +149,22 @@ TEMPLATE_TEST_CASE("A good set's linearized statistics are those of its poses' m
     CHECK(each[k].redundancy == Approx(expected.redundancy).epsilon(1e-9));
   }
 
-  // Groups of the good set's loops: one, three consecutive ones, and the first and last.
-  const std::vector<std::vector<int>> groups = {
-      {in[5]}, {in[10], in[11], in[12]}, {in.front(), in.back()}};
-  const std::vector<double> removals = good.LinearizeRemovals(groups);
-  REQUIRE(removals.size() == groups.size());
-  for (size_t k = 0; k < groups.size(); ++k) {
-    const std::vector<int> ends = ends_of(groups[k]);
-    const double expected =
-        LinearizeRemoval<TestType>(edges_of(groups[k]), estimate, ends, solver.Covariance(ends));
-    INFO("group " << k << ": " << removals[k] << " against " << expected);
-    CHECK(expected > 0.0);
-    CHECK(removals[k] == Approx(expected).epsilon(1e-9));
+  // Groups of the good set's loops: one, three consecutive ones, and the first and last (fewer
+  // links than poses: projected); then the three links on two poses alone (Sigma).
+  for (const std::vector<std::vector<int>>& groups :
+       {std::vector<std::vector<int>>{{in[5]}, {in[10], in[11], in[12]}, {in.front(), last_in}},
+        std::vector<std::vector<int>>{shared}}) {
+    const std::vector<double> removals = good.LinearizeRemovals(groups);
+    REQUIRE(removals.size() == groups.size());
+    for (size_t k = 0; k < groups.size(); ++k) {
+      const std::vector<int> ends = ends_of(groups[k]);
+      const double expected =
+          LinearizeRemoval<TestType>(edges_of(groups[k]), estimate, ends, solver.Covariance(ends));
+      INFO("group of " << groups[k].size() << " links on " << ends.size()
+                       << " poses: " << removals[k] << " against " << expected);
+      CHECK(expected > 0.0);
+      CHECK(removals[k] == Approx(expected).epsilon(1e-9));
+    }
   }
 }
 
