@@ -30,6 +30,24 @@ struct GoodSet<Pose>::Impl {
     return solvers[c].get();
   }
 
+  // The estimate with the points H is linearized at written in for the end poses of `groups`:
+  // where their Jacobians are taken (StackEdges), in the tangent Sigma is in. Taken at the
+  // estimate instead, they disagree with H wherever a pose has moved without being relinearized
+  // (IncrementalSolverOptions::model_tolerance), and C - J Sigma J' of a removal was not positive
+  // definite for a quarter of BendingParts' groups on Manhattan + 100 local-grouped, seed 36: the
+  // wrong group whose removal statistic came out NaN there stayed in (ATE 2.03 m, oracle 0.79).
+  std::vector<Pose> LinearizationPoints(const std::vector<std::vector<int>>& groups) const {
+    std::vector<Pose> points = *estimate;
+    for (const std::vector<int>& group : groups) {
+      for (int e : group) {
+        for (int v : {graph->edge(e).from, graph->edge(e).to}) {
+          points[v] = SolverOfVertex(v)->linearization_point(v);
+        }
+      }
+    }
+    return points;
+  }
+
   void Publish(const IncrementalSolver<Pose>& solver) {
     for (int v : solver.vertices()) (*estimate)[v] = solver.estimate(v);
   }
@@ -179,17 +197,19 @@ std::vector<Eigen::MatrixXd> GoodSet<Pose>::ProjectedCovariances(
 namespace {
 
 // For groups of loops whose ends lie in one component of `good` (its open trial's, during one):
-// visit(k, stack, projected) with group k's loops stacked at `estimate` (StackEdges, against
-// their end poses) and J Sigma J' from the factorization. Groups of at most kLinearizeChunk loops
-// together (a larger one alone) share one recovery, which costs d sparse solves per column of
-// what it recovers: by projection (A = J'), d per loop; Sigma itself, d per distinct end pose of
-// the chunk, then projected block by block. Whichever is fewer: lone loops and runs project, a
-// large cluster whose loops share poses (the parking garage's: 41 -> 66 s by projection) does not.
+// visit(k, stack, projected) with group k's loops stacked at `estimate`, their Jacobians at
+// `linearization` (StackEdges, against their end poses), and J Sigma J' from the factorization.
+// Groups of at most kLinearizeChunk loops together (a larger one alone) share one recovery, which
+// costs d sparse solves per column of what it recovers: by projection (A = J'), d per loop; Sigma
+// itself, d per distinct end pose of the chunk, then projected block by block. Whichever is fewer:
+// lone loops and runs project, a large cluster whose loops share poses (the parking garage's: 41 ->
+// 66 s by projection) does not.
 template <class Pose, class Visit>
 void ForEachProjectedCovariance(const GoodSet<Pose>& good,
                                 const PoseGraph<Pose>& graph,
                                 const std::vector<std::vector<int>>& groups,
                                 const std::vector<Pose>& estimate,
+                                const std::vector<Pose>& linearization,
                                 Visit visit) {
   for (size_t first = 0; first < groups.size();) {
     size_t last = first;
@@ -215,7 +235,7 @@ void ForEachProjectedCovariance(const GoodSet<Pose>& good,
         }
       }
       poses.insert(poses.end(), projection.vertices.begin(), projection.vertices.end());
-      stacks.push_back(StackEdges<Pose>(edges, estimate, projection.vertices));
+      stacks.push_back(StackEdges<Pose>(edges, estimate, projection.vertices, &linearization));
       projections.push_back(std::move(projection));
     }
     std::sort(poses.begin(), poses.end());
@@ -253,6 +273,7 @@ std::vector<LinearizedAddition> GoodSet<Pose>::LinearizeEach(const std::vector<i
       *impl_->graph,
       groups,
       *impl_->estimate,
+      impl_->LinearizationPoints(groups),
       [&](size_t k, const StackedEdges<Pose>& stack, Eigen::MatrixXd projected) {
         out[k] = AdditionStatistic(stack, std::move(projected));
       });
@@ -275,6 +296,7 @@ std::vector<double> GoodSet<Pose>::LinearizeRemovals(
       graph,
       groups,
       at,
+      impl_->LinearizationPoints(groups),
       [&](size_t k, const StackedEdges<Pose>& stack, Eigen::MatrixXd projected) {
         out[k] = RemovalStatistic(stack, std::move(projected));
       });

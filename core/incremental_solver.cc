@@ -314,6 +314,12 @@ const Pose& IncrementalSolver<Pose>::estimate(int vertex) const {
 }
 
 template <class Pose>
+const Pose& IncrementalSolver<Pose>::linearization_point(int vertex) const {
+  IRRR_CHECK(Contains(vertex));
+  return impl_->LinearizationPoint(vertex);
+}
+
+template <class Pose>
 const std::vector<int>& IncrementalSolver<Pose>::vertices() const {
   return impl_->vertices;
 }

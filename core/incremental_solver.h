@@ -157,6 +157,9 @@ class IncrementalSolver {
   bool Contains(int vertex) const;
   int anchor() const;
   const Pose& estimate(int vertex) const;  // vertex must be in the problem
+  // The point its edges are linearized at in H (the covariances' tangent); within the
+  // relinearization bounds or the model tolerance of the estimate.
+  const Pose& linearization_point(int vertex) const;
   const std::vector<int>& vertices() const;
   const std::vector<int>& edges() const;  // in the order added
   // D^2 at the estimate (of the quadratic model at the linearization points: close to the exact

@@ -75,7 +75,8 @@ double RobustVarianceFactor(const std::vector<RedundancySample>& samples) {
 template <class Pose>
 StackedEdges<Pose> StackEdges(const std::vector<const Edge<Pose>*>& edges,
                               const std::vector<Pose>& estimate,
-                              const std::vector<int>& vertices) {
+                              const std::vector<int>& vertices,
+                              const std::vector<Pose>* linearization) {
   constexpr int d = Pose::kDim;
   const int n = static_cast<int>(edges.size());
   auto column_of = [&vertices](int v) {
@@ -91,11 +92,15 @@ StackedEdges<Pose> StackEdges(const std::vector<const Edge<Pose>*>& edges,
   out.columns.resize(n);
   for (int k = 0; k < n; ++k) {
     const Edge<Pose>& edge = *edges[k];
-    out.r.template segment<d>(k * d) = RelativePoseResidual<Pose>(edge.measurement,
-                                                                  estimate[edge.from],
-                                                                  estimate[edge.to],
-                                                                  &out.jacobians[k][0],
-                                                                  &out.jacobians[k][1]);
+    typename Pose::Matrix* J_from = &out.jacobians[k][0];
+    typename Pose::Matrix* J_to = &out.jacobians[k][1];
+    if (linearization != nullptr) {
+      RelativePoseResidual<Pose>(
+          edge.measurement, (*linearization)[edge.from], (*linearization)[edge.to], J_from, J_to);
+      J_from = J_to = nullptr;
+    }
+    out.r.template segment<d>(k * d) = RelativePoseResidual<Pose>(
+        edge.measurement, estimate[edge.from], estimate[edge.to], J_from, J_to);
     out.columns[k] = {column_of(edge.from), column_of(edge.to)};
     out.C[k] = edge.information.inverse();
   }
@@ -204,8 +209,10 @@ double LinearizeRemoval(const std::vector<const Edge<Pose>*>& edges,
 
 #define IRRR_INSTANTIATE_STACKED(Pose)                                                             \
   template struct StackedEdges<Pose>;                                                              \
-  template StackedEdges<Pose> StackEdges<Pose>(                                                    \
-      const std::vector<const Edge<Pose>*>&, const std::vector<Pose>&, const std::vector<int>&);   \
+  template StackedEdges<Pose> StackEdges<Pose>(const std::vector<const Edge<Pose>*>&,              \
+                                               const std::vector<Pose>&,                           \
+                                               const std::vector<int>&,                            \
+                                               const std::vector<Pose>*);                          \
   template Eigen::MatrixXd ProjectCovariance<Pose>(const StackedEdges<Pose>&,                      \
                                                    const Eigen::MatrixXd&);                        \
   template LinearizedAddition AdditionStatistic<Pose>(const StackedEdges<Pose>&, Eigen::MatrixXd); \

@@ -87,7 +87,9 @@ LinearizedAddition LinearizeAddition(const std::vector<const Edge<Pose>*>& edges
 // The same statistics in two steps, for a caller that gets J Sigma J' some other way (from a
 // factorization, without Sigma itself: IncrementalSolver::ProjectedCovariances with A = J'):
 // the edges stacked at `estimate` (their residuals, C's blocks and Jacobians, against
-// `vertices`), then the statistic from J Sigma J'.
+// `vertices`), then the statistic from J Sigma J'. Given `linearization`, the Jacobians are taken
+// there instead: the points a factorization's H was linearized at, in whose tangent its Sigma is.
+// Only with J and H at the same points is C - J Sigma J' of a removal positive definite.
 template <class Pose>
 struct StackedEdges {
   Eigen::VectorXd r;                                            // d*n
@@ -102,7 +104,8 @@ struct StackedEdges {
 template <class Pose>
 StackedEdges<Pose> StackEdges(const std::vector<const Edge<Pose>*>& edges,
                               const std::vector<Pose>& estimate,
-                              const std::vector<int>& vertices);
+                              const std::vector<int>& vertices,
+                              const std::vector<Pose>* linearization = nullptr);
 // J Sigma J' from Sigma (d*m x d*m).
 template <class Pose>
 Eigen::MatrixXd ProjectCovariance(const StackedEdges<Pose>& stack,
