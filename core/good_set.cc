@@ -31,11 +31,14 @@ struct GoodSet<Pose>::Impl {
   }
 
   // The estimate with the points H is linearized at written in for the end poses of `groups`:
-  // where their Jacobians are taken (StackEdges), in the tangent Sigma is in. Taken at the
-  // estimate instead, they disagree with H wherever a pose has moved without being relinearized
+  // where a removal takes their Jacobians (StackEdges), as H holds them. Taken at the estimate
+  // instead, they disagree with H wherever a pose has moved without being relinearized
   // (IncrementalSolverOptions::model_tolerance), and C - J Sigma J' of a removal was not positive
   // definite for a quarter of BendingParts' groups on Manhattan + 100 local-grouped, seed 36: the
   // wrong group whose removal statistic came out NaN there stayed in (ATE 2.03 m, oracle 0.79).
+  // An addition's links are not in H, and their Jacobians stay at the estimate, where their
+  // residuals are: taken here too, they changed the screen of Manhattan + 2000 local-grouped,
+  // seed 2, and a wrong group stayed in (3 wrong, 2086 of 2099 true loops).
   std::vector<Pose> LinearizationPoints(const std::vector<std::vector<int>>& groups) const {
     std::vector<Pose> points = *estimate;
     for (const std::vector<int>& group : groups) {
@@ -198,7 +201,8 @@ namespace {
 
 // For groups of loops whose ends lie in one component of `good` (its open trial's, during one):
 // visit(k, stack, projected) with group k's loops stacked at `estimate`, their Jacobians at
-// `linearization` (StackEdges, against their end poses), and J Sigma J' from the factorization.
+// `linearization` if given (StackEdges, against their end poses), and J Sigma J' from the
+// factorization.
 // Groups of at most kLinearizeChunk loops together (a larger one alone) share one recovery, which
 // costs d sparse solves per column of what it recovers: by projection (A = J'), d per loop; Sigma
 // itself, d per distinct end pose of the chunk, then projected block by block. Whichever is fewer:
@@ -209,7 +213,7 @@ void ForEachProjectedCovariance(const GoodSet<Pose>& good,
                                 const PoseGraph<Pose>& graph,
                                 const std::vector<std::vector<int>>& groups,
                                 const std::vector<Pose>& estimate,
-                                const std::vector<Pose>& linearization,
+                                const std::vector<Pose>* linearization,
                                 Visit visit) {
   for (size_t first = 0; first < groups.size();) {
     size_t last = first;
@@ -235,7 +239,7 @@ void ForEachProjectedCovariance(const GoodSet<Pose>& good,
         }
       }
       poses.insert(poses.end(), projection.vertices.begin(), projection.vertices.end());
-      stacks.push_back(StackEdges<Pose>(edges, estimate, projection.vertices, &linearization));
+      stacks.push_back(StackEdges<Pose>(edges, estimate, projection.vertices, linearization));
       projections.push_back(std::move(projection));
     }
     std::sort(poses.begin(), poses.end());
@@ -273,7 +277,7 @@ std::vector<LinearizedAddition> GoodSet<Pose>::LinearizeEach(const std::vector<i
       *impl_->graph,
       groups,
       *impl_->estimate,
-      impl_->LinearizationPoints(groups),
+      nullptr,
       [&](size_t k, const StackedEdges<Pose>& stack, Eigen::MatrixXd projected) {
         out[k] = AdditionStatistic(stack, std::move(projected));
       });
@@ -290,13 +294,14 @@ std::vector<double> GoodSet<Pose>::LinearizeRemovals(
       for (int v : {graph.edge(e).from, graph.edge(e).to}) at[v] = Estimate(v);
     }
   }
+  const std::vector<Pose> linearization = impl_->LinearizationPoints(groups);
   std::vector<double> out(groups.size());
   ForEachProjectedCovariance<Pose>(
       *this,
       graph,
       groups,
       at,
-      impl_->LinearizationPoints(groups),
+      &linearization,
       [&](size_t k, const StackedEdges<Pose>& stack, Eigen::MatrixXd projected) {
         out[k] = RemovalStatistic(stack, std::move(projected));
       });
