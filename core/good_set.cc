@@ -202,12 +202,11 @@ namespace {
 // For groups of loops whose ends lie in one component of `good` (its open trial's, during one):
 // visit(k, stack, projected) with group k's loops stacked at `estimate`, their Jacobians at
 // `linearization` if given (StackEdges, against their end poses), and J Sigma J' from the
-// factorization.
-// Groups of at most kLinearizeChunk loops together (a larger one alone) share one recovery, which
-// costs d sparse solves per column of what it recovers: by projection (A = J'), d per loop; Sigma
-// itself, d per distinct end pose of the chunk, then projected block by block. Whichever is fewer:
-// lone loops and runs project, a large cluster whose loops share poses (the parking garage's: 41 ->
-// 66 s by projection) does not.
+// factorization. Groups of at most kLinearizeChunk loops together (a larger one alone) share one
+// recovery, which costs d sparse solves per column of what it recovers: by projection (A = J'), d
+// per loop; Sigma itself, d per distinct end pose of the chunk, then projected block by block.
+// Whichever is fewer: lone loops and runs project, a large cluster whose loops share poses (the
+// parking garage's: 41 -> 66 s by projection) does not.
 template <class Pose, class Visit>
 void ForEachProjectedCovariance(const GoodSet<Pose>& good,
                                 const PoseGraph<Pose>& graph,
