@@ -30,27 +30,6 @@ struct GoodSet<Pose>::Impl {
     return solvers[c].get();
   }
 
-  // The estimate with the points H is linearized at written in for the end poses of `groups`:
-  // where a removal takes their Jacobians (StackEdges), as H holds them. Taken at the estimate
-  // instead, they disagree with H wherever a pose has moved without being relinearized
-  // (IncrementalSolverOptions::model_tolerance), and C - J Sigma J' of a removal was not positive
-  // definite for a quarter of BendingParts' groups on Manhattan + 100 local-grouped, seed 36: the
-  // wrong group whose removal statistic came out NaN there stayed in (ATE 2.03 m, oracle 0.79).
-  // An addition's links are not in H, and their Jacobians stay at the estimate, where their
-  // residuals are: taken here too, they changed the screen of Manhattan + 2000 local-grouped,
-  // seed 2, and a wrong group stayed in (3 wrong, 2086 of 2099 true loops).
-  std::vector<Pose> LinearizationPoints(const std::vector<std::vector<int>>& groups) const {
-    std::vector<Pose> points = *estimate;
-    for (const std::vector<int>& group : groups) {
-      for (int e : group) {
-        for (int v : {graph->edge(e).from, graph->edge(e).to}) {
-          points[v] = SolverOfVertex(v)->linearization_point(v);
-        }
-      }
-    }
-    return points;
-  }
-
   void Publish(const IncrementalSolver<Pose>& solver) {
     for (int v : solver.vertices()) (*estimate)[v] = solver.estimate(v);
   }
@@ -276,6 +255,9 @@ std::vector<LinearizedAddition> GoodSet<Pose>::LinearizeEach(const std::vector<i
       *impl_->graph,
       groups,
       *impl_->estimate,
+      // The loops are not in H: their Jacobians stay where their residuals are. At the
+      // linearization points they changed the screen of Manhattan + 2000 local-grouped, seed 2,
+      // and a wrong group stayed in (3 wrong, 2086 of 2099 true loops).
       nullptr,
       [&](size_t k, const StackedEdges<Pose>& stack, Eigen::MatrixXd projected) {
         out[k] = AdditionStatistic(stack, std::move(projected));
@@ -286,14 +268,24 @@ std::vector<LinearizedAddition> GoodSet<Pose>::LinearizeEach(const std::vector<i
 template <class Pose>
 std::vector<double> GoodSet<Pose>::LinearizeRemovals(
     const std::vector<std::vector<int>>& groups) const {
+  // The groups' end poses: each residual at the estimate (the open trial's, during one), its
+  // Jacobians where H holds them (the solver's linearization points). Taken at the estimate
+  // instead, they disagree with H wherever a pose has moved without being relinearized
+  // (IncrementalSolverOptions::model_tolerance), and C - J Sigma J' was not positive definite for
+  // a quarter of BendingParts' groups on Manhattan + 100 local-grouped, seed 36: the wrong group
+  // whose removal statistic came out NaN there stayed in (ATE 2.03 m, oracle 0.79).
   const PoseGraph<Pose>& graph = *impl_->graph;
-  std::vector<Pose> at = *impl_->estimate;  // with the open trial's poses written in
+  std::vector<Pose> at = *impl_->estimate;
+  std::vector<Pose> linearization = at;
   for (const std::vector<int>& group : groups) {
     for (int e : group) {
-      for (int v : {graph.edge(e).from, graph.edge(e).to}) at[v] = Estimate(v);
+      for (int v : {graph.edge(e).from, graph.edge(e).to}) {
+        const IncrementalSolver<Pose>& solver = *impl_->SolverOfVertex(v);
+        at[v] = solver.estimate(v);
+        linearization[v] = solver.linearization_point(v);
+      }
     }
   }
-  const std::vector<Pose> linearization = impl_->LinearizationPoints(groups);
   std::vector<double> out(groups.size());
   ForEachProjectedCovariance<Pose>(
       *this,

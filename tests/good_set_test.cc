@@ -11,6 +11,7 @@
 namespace irrr {
 namespace {
 
+using testing::AddMovedCopy;
 using testing::MakeSyntheticGraph;
 using testing::NoisyOptions;
 using testing::RelativeDifference;
@@ -186,21 +187,10 @@ TEMPLATE_TEST_CASE(
   const int n = graph.num_vertices();
   const std::vector<int>& in = synthetic.loop_edges;
   std::vector<int> group;
-  typename TestType::Tangent offset = TestType::Tangent::Zero();
-  offset(0) = 2.0;
-  offset(TestType::kDim - 1) = 0.6;
   for (int e : in) {
-    const Edge<TestType> loop = graph.edge(e);
+    const Edge<TestType>& loop = graph.edge(e);
     if (std::max(loop.from, loop.to) < n / 2 || group.size() == 3) continue;
-    int copy = -1;
-    REQUIRE(graph
-                .AddLoop(loop.from,
-                         loop.to,
-                         loop.measurement * TestType::Exp(offset),
-                         loop.information,
-                         &copy)
-                .ok());
-    group.push_back(copy);
+    group.push_back(AddMovedCopy(&graph, e, 2.0, 0.6));
   }
   REQUIRE(group.size() == 3);
   IncrementalSolverOptions options;

@@ -15,6 +15,7 @@
 namespace irrr {
 namespace {
 
+using testing::AddMovedCopy;
 using testing::MakeSyntheticGraph;
 using testing::NoisyOptions;
 using testing::SyntheticOptions;
@@ -164,19 +165,8 @@ TEMPLATE_TEST_CASE("The pairwise factor is the information's variance factor, a 
   std::mt19937 rng(7);
   const size_t true_links = links.size();
   for (size_t k = 0; k < true_links / 4; ++k) {
-    const Edge<TestType>& model = graph.edge(links[k * 4]);
-    typename TestType::Tangent offset = TestType::Tangent::Zero();
-    offset(0) = 2.0;
-    offset(TestType::kDim - 1) = std::uniform_real_distribution<double>(0.5, 1.0)(rng);
-    int edge = -1;
-    REQUIRE(graph
-                .AddLoop(model.from,
-                         model.to,
-                         model.measurement * TestType::Exp(offset),
-                         model.information,
-                         &edge)
-                .ok());
-    links.push_back(edge);
+    const double rotation_rad = std::uniform_real_distribution<double>(0.5, 1.0)(rng);
+    links.push_back(AddMovedCopy(&graph, links[k * 4], 2.0, rotation_rad));
   }
   const std::vector<TestType> dead_reckoning = graph.OdometryEstimate();
   PairwiseConsistency<TestType> pairwise(&graph, &dead_reckoning);

@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "core/pose_graph.h"
+#include "core/status.h"
 
 namespace irrr::testing {
 
@@ -50,6 +51,21 @@ SyntheticOptions NoisyOptions(uint32_t seed) {
   options.rotation_sigma_rad = 0.01;
   options.seed = seed;
   return options;
+}
+
+// Adds a copy of loop `loop` whose measurement is moved by `translation_m` along the first axis
+// and `rotation_rad` about the last (a wrong link beside a true one); returns its edge index.
+template <class Pose>
+int AddMovedCopy(PoseGraph<Pose>* graph, int loop, double translation_m, double rotation_rad) {
+  const Edge<Pose> model = graph->edge(loop);
+  typename Pose::Tangent offset = Pose::Tangent::Zero();
+  offset(0) = translation_m;
+  offset(Pose::kDim - 1) = rotation_rad;
+  int edge = -1;
+  const Status status = graph->AddLoop(
+      model.from, model.to, model.measurement * Pose::Exp(offset), model.information, &edge);
+  IRRR_CHECK(status.ok());
+  return edge;
 }
 
 // Tolerance-free comparison helper: largest translation (m) and rotation (rad) difference
