@@ -61,6 +61,18 @@ struct WarmEngine<Pose>::Impl {
   // tripled a run's time), and the wrong groups it is for are a few links (the generator's
   // groups: 3-10).
   static constexpr size_t kMaxWeighedLinks = 20;
+  // Poses within which a link accepted at this step pins a good part (PinnedParts).
+  static constexpr int kPinWindow = 50;
+  // Steps after its acceptance during which a good part is weighed again when pinned
+  // (PinnedParts): a wrong part is pinned while its revisit goes on (Manhattan + 1000: 1 and 3
+  // steps after), and weighing every part near every step's links doubled City10000 + 1000
+  // random-grouped's time (55 -> 116 s).
+  static constexpr int kPinSteps = 8;
+  // A pinned part is weighed only when its links' d^2 have grown this many times since their
+  // acceptance: pulled back toward the truth, a wrong part's residuals grow (Manhattan + 1000
+  // local-grouped seed 42's group 0.054 -> 1.27, local seed 30's link 0.138 -> 0.213), and on
+  // Manhattan + 100 random three in four pinned parts are not weighed.
+  static constexpr double kPinGrowth = 1.2;
 
   Impl(const PoseGraph<Pose>* g,
        const IrrrOptions* o,
@@ -404,6 +416,17 @@ struct WarmEngine<Pose>::Impl {
   // at the factor 0.122, which later fell to 0.061): at the end their removal statistics are 5.3,
   // 5.6 and 2.9 times their thresholds.
   std::vector<std::pair<int, std::vector<int>>> DueRuns();
+  // The parts (Parts: runs, and lone links alone) of good clusters but those in `skip` with an
+  // end within kPinWindow poses of an end of a link accepted at this step, each with its cluster:
+  // candidates of ReverseOutvoted at kScreenMargin. Lone links accepted at this step are left
+  // out. A wrong group or link that bent a stretch only odometry held stands out once a later
+  // cluster pins that stretch, long before the good set has doubled (DueRuns). Manhattan + 1000
+  // local-grouped, seed 42: 2869-2871 -> 2836-2838, accepted at step 55 at 0.65 times its
+  // threshold, stands at 5.4 times from step 56 on, when a 48-link revisit closes at 2859-2878.
+  // Manhattan + 1000 local, seed 30: 2615 -> 2578, accepted at step 53 at 1.7 times, stands at
+  // 4.0-4.7 times from step 56 on. At kBendingRunMargin (2), Intel + 100 random-grouped seed 16
+  // reversed a true run of 13 links (692-702 -> 888-901), which then failed its joint test by 3%.
+  std::vector<std::pair<int, std::vector<int>>> PinnedParts(const std::vector<int>& skip) const;
   // Cluster g's runs are judged as of now (the good set's links and the variance factor).
   void MarkChecked(int g);
   // A run of a good cluster within one session, accepted before this step, whose span holds

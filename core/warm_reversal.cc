@@ -109,12 +109,19 @@ void WarmEngine<Pose>::Impl::ReverseOutvoted(StepResult* result) {
           {g, Threshold(d * static_cast<double>(groups.back().size())), kBendingRunMargin});
       due_cluster.push_back(g);
     }
+    // The parts of good clusters near links accepted at this step: groups[first_pinned] on.
+    const size_t first_pinned = groups.size();
+    for (auto& [g, part] : PinnedParts(due_cluster)) {
+      groups.push_back(std::move(part));
+      candidates.push_back(
+          {g, Threshold(d * static_cast<double>(groups.back().size())), kScreenMargin});
+    }
     const std::vector<double> removal =
         groups.empty() ? std::vector<double>() : good.LinearizeRemovals(groups);
     // A due cluster none of whose runs reaches its margin is checked until the evidence grows
     // again (a statistic that came out NaN, the matrix not positive definite, reaches nothing).
     std::map<int, bool> below;
-    for (size_t k = first_due; k < groups.size(); ++k) {
+    for (size_t k = first_due; k < first_pinned; ++k) {
       const bool passes = !(removal[k] >= candidates[k].margin * candidates[k].threshold);
       const auto [it, inserted] = below.insert({due_cluster[k - first_due], passes});
       if (!inserted) it->second = it->second && passes;
@@ -170,6 +177,60 @@ std::vector<std::pair<int, std::vector<int>>> WarmEngine<Pose>::Impl::DueRuns() 
     if (!any) MarkChecked(g);
   }
   return due;
+}
+
+template <class Pose>
+std::vector<std::pair<int, std::vector<int>>> WarmEngine<Pose>::Impl::PinnedParts(
+    const std::vector<int>& skip) const {
+  std::vector<int> ends;  // of the links accepted at this step, in vertex order
+  for (int e = 0; e < graph->num_edges(); ++e) {
+    const LoopDecision& decision = book->decisions[e];
+    if (decision.state != LoopState::kAccepted || decision.step != book->step) continue;
+    ends.push_back(graph->edge(e).from);
+    ends.push_back(graph->edge(e).to);
+  }
+  std::vector<std::pair<int, std::vector<int>>> pinned;
+  if (ends.empty()) return pinned;
+  std::sort(ends.begin(), ends.end());
+  auto near = [&](int v) {
+    const int session = graph->vertex(v).session;
+    for (auto it = std::lower_bound(ends.begin(), ends.end(), v - kPinWindow);
+         it != ends.end() && *it <= v + kPinWindow;
+         ++it) {
+      if (graph->vertex(*it).session == session) return true;
+    }
+    return false;
+  };
+  for (int g = 0; g < static_cast<int>(book->clusters.size()); ++g) {
+    const JudgedCluster& c = book->clusters[g];
+    if (!c.in_good || std::find(skip.begin(), skip.end(), g) != skip.end()) continue;
+    for (std::vector<int>& part : Parts(c.links)) {
+      // What was accepted at this step is left out: its runs were weighed at their trial
+      // (BendingParts), and a young revisit's true lone links stand at 4 times their threshold
+      // and more until the map settles around them. So is what was accepted more than
+      // kPinSteps steps ago.
+      int newest = -1;
+      for (int e : part) newest = std::max(newest, book->decisions[e].step);
+      if (part.size() > kMaxWeighedLinks || newest >= book->step ||
+          newest < book->step - kPinSteps) {
+        continue;
+      }
+      const bool pinned_now = std::any_of(part.begin(), part.end(), [&](int e) {
+        return near(graph->edge(e).from) || near(graph->edge(e).to);
+      });
+      if (!pinned_now) continue;
+      // Only a part pulled away from its claim is weighed: its links' d^2 at the estimate have
+      // grown since they were accepted (the d^2 recorded then).
+      double now = 0.0;
+      double accepted = 0.0;
+      for (int e : part) {
+        now += good.EdgeChi2(e);
+        accepted += book->decisions[e].chi2;
+      }
+      if (now > kPinGrowth * accepted) pinned.push_back({g, std::move(part)});
+    }
+  }
+  return pinned;
 }
 
 template <class Pose>
@@ -562,6 +623,8 @@ void WarmEngine<Pose>::Impl::Recover(int since,
   template void WarmEngine<Pose>::Impl::ReverseOutvoted(StepResult*);                            \
   template std::vector<WarmEngine<Pose>::Impl::BendingRun> WarmEngine<Pose>::Impl::BendingRuns() \
       const;                                                                                     \
+  template std::vector<std::pair<int, std::vector<int>>> WarmEngine<Pose>::Impl::PinnedParts(    \
+      const std::vector<int>&) const;                                                            \
   template void WarmEngine<Pose>::Impl::NoteRefusals(const std::vector<int>&);                   \
   template int WarmEngine<Pose>::Impl::EarliestStep(const std::vector<int>&) const;              \
   template void WarmEngine<Pose>::Impl::Rejudge(std::vector<int>, StepResult*);                  \
