@@ -66,7 +66,7 @@ struct WarmEngine<Pose>::Impl {
   // Steps after its acceptance during which a good part is weighed again when pinned
   // (PinnedParts): a wrong part is pinned while its revisit goes on (Manhattan + 1000: 1 and 3
   // steps after), and weighing every part near every step's links doubled City10000 + 1000
-  // random-grouped's time (55 -> 116 s).
+  // random-grouped's time (72.8 -> 116 s on one day).
   static constexpr int kPinSteps = 8;
   // A pinned part is weighed only when its links' d^2 have grown this many times since their
   // acceptance: pulled back toward the truth, a wrong part's residuals grow (Manhattan + 1000
@@ -416,10 +416,10 @@ struct WarmEngine<Pose>::Impl {
   // at the factor 0.122, which later fell to 0.061): at the end their removal statistics are 5.3,
   // 5.6 and 2.9 times their thresholds.
   std::vector<std::pair<int, std::vector<int>>> DueRuns();
-  // The parts (Parts: runs, and lone links alone) of good clusters but those in `skip` with an
-  // end within kPinWindow poses of an end of a link accepted at this step, each with its cluster:
-  // candidates of ReverseOutvoted at kScreenMargin. Lone links accepted at this step are left
-  // out. A wrong group or link that bent a stretch only odometry held stands out once a later
+  // The parts (Parts: runs, and lone links alone) of good clusters but those in `skip`, accepted
+  // in the kPinSteps steps before this one, with an end within kPinWindow poses of an end of a
+  // link accepted at this step and links whose d^2 grew kPinGrowth times since acceptance, each
+  // with its cluster: candidates of ReverseOutvoted at kScreenMargin. A wrong group or link that bent a stretch only odometry held stands out once a later
   // cluster pins that stretch, long before the good set has doubled (DueRuns). Manhattan + 1000
   // local-grouped, seed 42: 2869-2871 -> 2836-2838, accepted at step 55 at 0.65 times its
   // threshold, stands at 5.4 times from step 56 on, when a 48-link revisit closes at 2859-2878.
