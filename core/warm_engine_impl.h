@@ -419,13 +419,14 @@ struct WarmEngine<Pose>::Impl {
   // The parts (Parts: runs, and lone links alone) of good clusters but those in `skip`, accepted
   // in the kPinSteps steps before this one, with an end within kPinWindow poses of an end of a
   // link accepted at this step and links whose d^2 grew kPinGrowth times since acceptance, each
-  // with its cluster: candidates of ReverseOutvoted at kScreenMargin. A wrong group or link that bent a stretch only odometry held stands out once a later
-  // cluster pins that stretch, long before the good set has doubled (DueRuns). Manhattan + 1000
-  // local-grouped, seed 42: 2869-2871 -> 2836-2838, accepted at step 55 at 0.65 times its
-  // threshold, stands at 5.4 times from step 56 on, when a 48-link revisit closes at 2859-2878.
-  // Manhattan + 1000 local, seed 30: 2615 -> 2578, accepted at step 53 at 1.7 times, stands at
-  // 4.0-4.7 times from step 56 on. At kBendingRunMargin (2), Intel + 100 random-grouped seed 16
-  // reversed a true run of 13 links (692-702 -> 888-901), which then failed its joint test by 3%.
+  // with its cluster: candidates of ReverseOutvoted at kScreenMargin. A wrong group or link that
+  // bent a stretch only odometry held stands out once a later cluster pins that stretch, long
+  // before the good set has doubled (DueRuns). Manhattan + 1000 local-grouped, seed 42: 2869-2871
+  // -> 2836-2838, accepted at step 55 at 0.65 times its threshold, stands at 5.4 times from step 56
+  // on, when a 48-link revisit closes at 2859-2878. Manhattan + 1000 local, seed 30: 2615 -> 2578,
+  // accepted at step 53 at 1.7 times, stands at 4.0-4.7 times from step 56 on. At kBendingRunMargin
+  // (2), Intel + 100 random-grouped seed 16 reversed a true run of 13 links (692-702 -> 888-901),
+  // which then failed its joint test by 3%.
   std::vector<std::pair<int, std::vector<int>>> PinnedParts(const std::vector<int>& skip) const;
   // Cluster g's runs are judged as of now (the good set's links and the variance factor).
   void MarkChecked(int g);
