@@ -1,18 +1,29 @@
-// irrr-corrupt: add wrong loop closures to a clean pose-graph file, for experiments.
+// irrr-corrupt: add failures to a clean pose-graph file, for experiments: wrong loop closures,
+// noisy odometry and faulty odometry edges.
 //
-//   irrr-corrupt INPUT OUTPUT --mode random|local|random-grouped|local-grouped|inter-session
-//                --count N --labels LABELS.csv [--group-size K] [--local-window W] [--seed S]
-//                [--split ID,ID,...]
+//   irrr-corrupt INPUT OUTPUT --labels LABELS.csv
+//                [--mode random|local|random-grouped|local-grouped|inter-session|aliased|
+//                        aliased-grouped] [--count N] [--group-size K] [--local-window W]
+//                [--aliased-translation M] [--aliased-rotation RAD]
+//                [--odometry-noise K] [--odometry-faults N] [--fault-labels FAULTS.csv]
+//                [--seed S] [--split ID,ID,...] [--skip-invalid-edges]
 //
 // Reads INPUT, optionally splits it into sessions at the given vertex ids (as the paper's Intel
-// experiment, IV.B), appends the outliers of core's MakeOutliers as extra edges after the file's
-// own, and writes OUTPUT (TORO for *.graph, g2o otherwise) and a CSV that labels every loop
-// hypothesis of OUTPUT. Exit codes follow sysexits.h: 64 usage, 65 bad input data or a request
-// the graph cannot hold, 66 input missing, 70 internal error, 73 output not written.
+// experiment, IV.B), then in this order: makes the odometry K times noisier than its information
+// says (core's PerturbOdometry), replaces N odometry measurements by wrong motions (core's
+// InjectOdometryFaults), appends the wrong loops of core's MakeOutliers, drawn on the graph as
+// changed so far, as extra edges after the file's own. Changed odometry re-chains the vertex
+// estimates, so OUTPUT's initial guess is its own dead reckoning. Writes OUTPUT (TORO for *.graph,
+// g2o otherwise), a CSV that labels every loop hypothesis of OUTPUT and, on request, a CSV of the
+// faulty odometry edges. One --seed drives all three, each from its own stream, so that a seed's
+// wrong loops join the same poses with the same claims whether or not noise or faults were added.
+// Exit codes follow sysexits.h: 64 usage, 65 bad input data or a request the graph cannot hold, 66
+// input missing, 70 internal error, 73 output not written.
 
 #include <sysexits.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <fstream>
 #include <map>
@@ -36,10 +47,17 @@ struct CorruptArguments {
   std::string input;
   std::string output;
   std::string labels;
-  std::string mode;
+  std::string fault_labels;  // empty: not written
+  std::string mode = OutlierModeName(OutlierMode::kRandom);
+  double odometry_noise = 0.0;  // 0: odometry left as given
+  int odometry_faults = 0;
   std::vector<int64_t> split;
   bool skip_invalid_edges = false;
-  OutlierOptions outliers;
+  OutlierOptions outliers = [] {
+    OutlierOptions options;
+    options.count = 0;  // no wrong loops unless asked for: the odometry options stand alone
+    return options;
+  }();
 };
 
 const std::map<std::string, OutlierMode>& ModeNames() {
@@ -49,7 +67,9 @@ const std::map<std::string, OutlierMode>& ModeNames() {
                              OutlierMode::kLocal,
                              OutlierMode::kRandomGrouped,
                              OutlierMode::kLocalGrouped,
-                             OutlierMode::kInterSession}) {
+                             OutlierMode::kInterSession,
+                             OutlierMode::kAliased,
+                             OutlierMode::kAliasedGrouped}) {
       by_name[OutlierModeName(mode)] = mode;
     }
     return by_name;
@@ -82,6 +102,21 @@ FileEdge<Pose> Reversed(const FileEdge<Pose>& edge) {
   return reversed;
 }
 
+constexpr const char* kFaultLabelsCsvHeader = "edge_index,from,to";
+
+// One row per faulty odometry edge of OUTPUT: its index in OUTPUT's edge list and its vertex ids.
+template <class Pose>
+Status WriteFaultLabelsCsv(std::ostream& out,
+                           const GraphFile<Pose>& file,
+                           const std::vector<int>& fault_file_edges) {
+  out << kFaultLabelsCsvHeader << '\n';
+  for (int k : fault_file_edges) {
+    out << fmt::format("{},{},{}\n", k, file.edges[k].from, file.edges[k].to);
+  }
+  if (!out) return Status::Error("write failed");
+  return Status::Ok();
+}
+
 template <class Pose>
 int Run(const CorruptArguments& args, FileFormat input_format) {
   GraphFile<Pose> file;
@@ -101,6 +136,22 @@ int Run(const CorruptArguments& args, FileFormat input_format) {
       return EX_DATAERR;
     }
   }
+  if (args.odometry_noise > 0.0) {
+    if (Status s = PerturbOdometry(args.odometry_noise, args.outliers.seed, &file); !s.ok()) {
+      fmt::print(stderr, "irrr-corrupt: --odometry-noise: {}: {}\n", args.input, s.message());
+      return EX_DATAERR;
+    }
+  }
+  // Indices in `file.edges`, which are also OUTPUT's: the wrong loops go after the file's edges.
+  std::vector<int> fault_file_edges;
+  if (args.odometry_faults > 0) {
+    if (Status s = InjectOdometryFaults(
+            args.odometry_faults, args.outliers.seed, &file, &fault_file_edges);
+        !s.ok()) {
+      fmt::print(stderr, "irrr-corrupt: --odometry-faults: {}: {}\n", args.input, s.message());
+      return EX_DATAERR;
+    }
+  }
   PoseGraph<Pose> graph;
   std::vector<int> unused;
   if (Status s = BuildPoseGraph(file, &graph, &unused); !s.ok()) {
@@ -108,9 +159,11 @@ int Run(const CorruptArguments& args, FileFormat input_format) {
     return EX_DATAERR;
   }
   std::vector<OutlierLink<Pose>> links;
-  if (Status s = MakeOutliers(graph, args.outliers, &links); !s.ok()) {
-    fmt::print(stderr, "irrr-corrupt: {}: {}\n", args.input, s.message());
-    return EX_DATAERR;
+  if (args.outliers.count > 0) {
+    if (Status s = MakeOutliers(graph, args.outliers, &links); !s.ok()) {
+      fmt::print(stderr, "irrr-corrupt: {}: {}\n", args.input, s.message());
+      return EX_DATAERR;
+    }
   }
 
   // Outliers after the file's own edges. A link (i, i+1) that is not odometry (between the last
@@ -192,16 +245,36 @@ int Run(const CorruptArguments& args, FileFormat input_format) {
     fmt::print(stderr, "irrr-corrupt: {}\n", s.message());
     return EX_CANTCREAT;
   }
+  if (!args.fault_labels.empty()) {
+    if (Status s = WriteFileAtomically(args.fault_labels,
+                                       [&](std::ostream& out) {
+                                         return WriteFaultLabelsCsv(
+                                             out, corrupted, fault_file_edges);
+                                       });
+        !s.ok()) {
+      fmt::print(stderr, "irrr-corrupt: {}\n", s.message());
+      return EX_CANTCREAT;
+    }
+  }
 
   const int num_groups = static_cast<int>(links.size()) / group_size;
+  std::string odometry_summary;
+  if (args.odometry_noise > 0.0) {
+    odometry_summary += fmt::format("odometry noise x{}", args.odometry_noise);
+  }
+  if (args.odometry_faults > 0) {
+    odometry_summary += fmt::format(
+        "{}{} odometry faults", odometry_summary.empty() ? "" : ", ", args.odometry_faults);
+  }
   fmt::print(
-      "irrr-corrupt: {}: {} {} poses in {} session(s), {} loop hypotheses; + {} {} outliers{} "
-      "(seed {}){} -> {}, labels {}\n",
+      "irrr-corrupt: {}: {} {} poses in {} session(s), {} loop hypotheses; {}+ {} {} outliers{} "
+      "(seed {}){} -> {}, labels {}{}\n",
       args.input,
       Pose::kName,
       graph.num_vertices(),
       graph.num_sessions(),
       num_loops,
+      odometry_summary.empty() ? std::string() : odometry_summary + "; ",
       links.size(),
       args.mode,
       IsGrouped(args.outliers.mode) ? fmt::format(" in {} groups of {}", num_groups, group_size)
@@ -209,7 +282,8 @@ int Run(const CorruptArguments& args, FileFormat input_format) {
       args.outliers.seed,
       num_reversed > 0 ? fmt::format(", {} written reversed", num_reversed) : std::string(),
       args.output,
-      args.labels);
+      args.labels,
+      args.fault_labels.empty() ? std::string() : ", fault labels " + args.fault_labels);
   return EX_OK;
 }
 
@@ -218,7 +292,9 @@ int Run(const CorruptArguments& args, FileFormat input_format) {
 
 int main(int argc, char** argv) {
   irrr::CorruptArguments args;
-  CLI::App app{"irrr-corrupt: add wrong loop closures to a pose-graph file and label them"};
+  CLI::App app{
+      "irrr-corrupt: add wrong loop closures, noisy odometry or odometry faults to a pose-graph "
+      "file and label them"};
   app.add_option("input", args.input, "clean g2o (2D or 3D) or TORO 2D pose-graph file")
       ->required();
   app.add_option("output", args.output, "corrupted graph (TORO for *.graph, g2o otherwise)")
@@ -227,14 +303,17 @@ int main(int argc, char** argv) {
   for (const auto& [name, mode] : irrr::ModeNames()) mode_names.push_back(name);
   app.add_option("--mode",
                  args.mode,
-                 "random, local (within --local-window poses), random-grouped, local-grouped or "
-                 "inter-session (grouped, between two sessions)")
-      ->required()
-      ->check(CLI::IsMember(mode_names));
-  app.add_option(
-         "--count", args.outliers.count, "outlier links in all (grouped: rounded up to groups)")
-      ->required()
-      ->check(CLI::NonNegativeNumber);
+                 "wrong loops: random, local (within --local-window poses), random-grouped, "
+                 "local-grouped, inter-session (grouped, between two sessions), aliased (lone "
+                 "links claiming two distant poses are nearly the same place) or aliased-grouped "
+                 "(groups as random-grouped with such a claim)")
+      ->check(CLI::IsMember(mode_names))
+      ->capture_default_str();
+  app.add_option("--count",
+                 args.outliers.count,
+                 "wrong loop links in all (grouped: rounded up to groups); 0 adds none")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
   app.add_option("--labels",
                  args.labels,
                  "write edge_index,from,to,outlier,group for every loop hypothesis of OUTPUT here")
@@ -247,7 +326,35 @@ int main(int argc, char** argv) {
                  "local modes: at most this many poses between the two ends")
       ->check(CLI::Range(2, 1 << 30))
       ->capture_default_str();
-  app.add_option("--seed", args.outliers.seed, "random seed")->capture_default_str();
+  app.add_option("--aliased-translation",
+                 args.outliers.aliased_translation_m,
+                 "aliased modes: the claim's translation is uniform in the disc (ball in 3D) of "
+                 "this radius (m)")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  app.add_option("--aliased-rotation",
+                 args.outliers.aliased_rotation_rad,
+                 "aliased modes: the claim's rotation is uniform within this angle (rad; 3D: "
+                 "about a random axis)")
+      ->check(CLI::Range(0.0, M_PI))
+      ->capture_default_str();
+  app.add_option("--odometry-noise",
+                 args.odometry_noise,
+                 "noisy odometry: perturb every odometry measurement by a draw from N(0, K^2 "
+                 "Sigma), Sigma the inverse of its information (kept), and chain the vertex "
+                 "estimates along it")
+      ->check(CLI::PositiveNumber);
+  app.add_option("--odometry-faults",
+                 args.odometry_faults,
+                 "odometry faults: replace N odometry measurements (distinct, spread over the "
+                 "sessions) by wrong motions (1-3 m, 0.3-1.0 rad more), information kept, and "
+                 "chain the vertex estimates along them; applied after --odometry-noise")
+      ->check(CLI::NonNegativeNumber);
+  app.add_option("--fault-labels",
+                 args.fault_labels,
+                 "write edge_index,from,to for every faulty odometry edge of OUTPUT here");
+  app.add_option("--seed", args.outliers.seed, "random seed (wrong loops, noise and faults)")
+      ->capture_default_str();
   app.add_option("--split",
                  args.split,
                  "start a new session at each of these vertex ids (comma separated); their "

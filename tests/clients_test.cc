@@ -569,6 +569,97 @@ TEST_CASE("irrr-corrupt splits Intel into four sessions with 600 inter-session o
   CHECK_THAT(ReadText(log), Contains("943 poses in 4 session(s), 939 odometry edges"));
 }
 
+TEST_CASE("irrr-corrupt adds aliased groups and odometry faults to Intel and labels both",
+          "[tools]") {
+  const std::string dir = TestDirectory("aliased_faults");
+  const std::string clean = std::string(IRRR_SOURCE_DIR) + "/data/intel.g2o";
+  const std::string corrupted = dir + "/intel_faults.g2o";
+  const std::string labels = dir + "/labels.csv";
+  const std::string fault_labels = dir + "/faults.csv";
+  const std::string log = dir + "/log.txt";
+  const std::string corrupt = std::string(IRRR_CORRUPT) + " " + Quoted(clean) + " " +
+                              Quoted(corrupted) +
+                              " --mode aliased-grouped --count 30 --odometry-faults 4 --seed 3 "
+                              "--labels " +
+                              Quoted(labels) + " --fault-labels " + Quoted(fault_labels);
+  {
+    const int code = RunTool(corrupt, log);
+    INFO(corrupt << "\n" << ReadText(log));
+    REQUIRE(code == 0);
+    CHECK_THAT(ReadText(log),
+               Contains("4 odometry faults; + 30 aliased-grouped outliers in 10 groups of 3 "
+                        "(seed 3)"));
+  }
+  GraphFile<Pose2> input;
+  PoseGraph<Pose2> input_graph;
+  std::vector<int> unused;
+  REQUIRE(
+      LoadPoseGraph(clean, FileFormat::kG2o, ReadOptions(), &input, &input_graph, &unused).ok());
+  GraphFile<Pose2> file;
+  PoseGraph<Pose2> graph;
+  std::vector<int> graph_edge_of_file_edge;
+  REQUIRE(LoadPoseGraph(
+              corrupted, FileFormat::kG2o, ReadOptions(), &file, &graph, &graph_edge_of_file_edge)
+              .ok());
+  REQUIRE(file.edges.size() == input.edges.size() + 30);
+
+  // The fault labels name the odometry edges whose measurement changed, and only those.
+  CHECK(ReadText(fault_labels).rfind("edge_index,from,to\n", 0) == 0);
+  std::vector<int> faults;
+  {
+    std::istringstream in(ReadText(fault_labels));
+    std::string line;
+    std::getline(in, line);
+    while (std::getline(in, line)) {
+      int edge_index = -1;
+      int64_t from = -1;
+      int64_t to = -1;
+      char comma1 = 0;
+      char comma2 = 0;
+      std::istringstream row(line);
+      REQUIRE(row >> edge_index >> comma1 >> from >> comma2 >> to);
+      REQUIRE(edge_index >= 0);
+      REQUIRE(edge_index < static_cast<int>(input.edges.size()));
+      CHECK(file.edges[edge_index].from == from);
+      CHECK(file.edges[edge_index].to == to);
+      CHECK(graph.edge(graph_edge_of_file_edge[edge_index]).kind == EdgeKind::kOdometry);
+      faults.push_back(edge_index);
+    }
+  }
+  REQUIRE(faults.size() == 4);
+  std::vector<int> changed;
+  for (size_t k = 0; k < input.edges.size(); ++k) {
+    const Pose2 extra = input.edges[k].measurement.Inverse() * file.edges[k].measurement;
+    if (extra.ErrorVector().isZero(0.0)) continue;
+    changed.push_back(static_cast<int>(k));
+    CHECK(extra.translation().norm() >= 1.0 - 1e-9);
+    CHECK(std::abs(extra.yaw_rad()) >= 0.3 - 1e-9);
+  }
+  CHECK(changed == faults);
+
+  // The estimates are the dead reckoning of the faulty odometry, from the first pose's.
+  const std::vector<Pose2> dead_reckoning = graph.OdometryEstimate();
+  const Pose2 first = file.vertices[0].estimate;
+  for (const FileVertex<Pose2>& v : file.vertices) {
+    const Pose2 difference =
+        (first * dead_reckoning[graph.FindVertex(v.id)]).Inverse() * v.estimate;
+    REQUIRE(difference.translation().norm() < 1e-6);
+  }
+
+  // Ten groups of three wrong loops, each group's first claim small.
+  const std::vector<LabelRow> rows = ReadCsv<LabelRow>(labels, &ReadLabelsCsv);
+  std::map<int, int> links_per_group;
+  for (const LabelRow& row : rows) {
+    if (!row.outlier) continue;
+    if (links_per_group[row.group]++ > 0) continue;
+    const Pose2& claim = file.edges[row.edge_index].measurement;
+    CHECK(claim.translation().norm() <= 1.0);
+    CHECK(std::abs(claim.yaw_rad()) <= 0.3);
+  }
+  CHECK(links_per_group.size() == 10);
+  for (const auto& [group, links] : links_per_group) CHECK(links == 3);
+}
+
 TEST_CASE("irrr-batch shows the data's variance estimate beside a factor fixed by the config",
           "[tools]") {
   const std::string dir = TestDirectory("variance_estimate");
