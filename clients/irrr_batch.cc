@@ -1,10 +1,14 @@
 // irrr-batch: decide about the loop closures of a pose-graph file and optimize it.
 //
-//   irrr-batch INPUT [--method none|rrr|irrr] [--config FILE] [--decisions OUT.csv]
+//   irrr-batch INPUT [--method none|rrr|irrr|dcs|gnc] [--config FILE] [--decisions OUT.csv]
 //              [--output OUT.g2o] [--ground-truth GT] [--alpha A] [--cluster-gap G]
 //              [--graph-dof residual_rows|exact] [--solver gn|lm] [--max-iterations N]
 //              [--plot MAP.svg|MAP.png]
 //
+// dcs and gnc are the field's robust-kernel baselines (core/robust_solve.h): their decisions are
+// "accepted" for a loop whose final weight is above 0.5 and "rejected_link_test" otherwise, with
+// the loop's d^2 at the final estimate and the kernel's threshold (DCS: 3 Phi, where the scale is
+// 0.5; GNC: the truncated least squares bound c^2) in the CSV.
 // --plot draws the map with every decision, the initial guess beside it, the time of every iRRR
 // step and, with --ground-truth, the ATE histogram (clients/common/plots.h).
 // Options come from the "irrr" object of the configuration file (if any), then from the command
@@ -33,6 +37,7 @@
 #include "core/graph_io.h"
 #include "core/irrr.h"
 #include "core/optimizer.h"
+#include "core/robust_solve.h"
 #include "core/test_statistics.h"
 #include "core/trajectory_metrics.h"
 #include "daemon/common/allocator.h"
@@ -52,6 +57,7 @@ struct BatchArguments {
   std::string labels;
   bool skip_unknown_tags = false;
   bool skip_invalid_edges = false;
+  RobustOptions robust;  // --method dcs or gnc
 };
 
 // Precision and recall of the decisions against an irrr-corrupt labels file (rows by file edge
@@ -190,6 +196,7 @@ int Run(const BatchArguments& args, const IrrrOptions& options, FileFormat forma
   std::vector<StepResult> steps;  // --method irrr
   std::vector<double> step_ms;    // the time of each
   double decide_s = 0.0;
+  std::string robust_note;  // --method dcs or gnc
   int exit_code = EX_OK;
   if (args.method == "none") {
     // Every loop hypothesis is trusted.
@@ -229,6 +236,34 @@ int Run(const BatchArguments& args, const IrrrOptions& options, FileFormat forma
         decisions[e].threshold = at_optimum.Of(Pose::kDim);
       }
     }
+  } else if (args.method == "dcs" || args.method == "gnc") {
+    const auto decide_start = std::chrono::steady_clock::now();
+    RobustOptions robust = args.robust;
+    robust.kernel = args.method == "dcs" ? RobustKernel::kDcs : RobustKernel::kGncTls;
+    RobustResult<Pose> result;
+    Status s = Status::Ok();
+    {
+      ProgressLine line;
+      ElapsedTicker ticker(fmt::format("{}: weighting {} loop hypotheses", args.method, num_loops),
+                           &line);
+      s = RobustSolve(graph, robust, graph.initial_estimate(), &result);
+    }
+    decide_s = SecondsSince(decide_start);
+    if (!s.ok()) {
+      fmt::print(stderr, "irrr-batch: {}\n", s.message());
+      return EX_SOFTWARE;
+    }
+    estimate = result.estimate;
+    for (int e = 0; e < graph.num_edges(); ++e) {
+      if (graph.edge(e).kind != EdgeKind::kLoop) continue;
+      decisions[e].state = result.Accepted(e) ? LoopState::kAccepted : LoopState::kRejectedLinkTest;
+      decisions[e].chi2 = result.edge_chi2[e];
+      decisions[e].threshold = result.threshold[e];
+    }
+    robust_note = fmt::format("{} reweightings, {} solver iterations, {}, ",
+                              result.outer_iterations,
+                              result.solver_iterations,
+                              result.message);
   } else {
     const auto decide_start = std::chrono::steady_clock::now();
     // On a terminal, a progress line on stderr while deciding (ProgressLine); nothing otherwise.
@@ -309,7 +344,7 @@ int Run(const BatchArguments& args, const IrrrOptions& options, FileFormat forma
                           steps.back().variance_factor,
                           VarianceEstimateNote(steps.back()))
         : args.method == "irrr" ? std::string("0 steps, ")
-                                : std::string(),
+                                : robust_note,
         num_components,
         chi2,
         decide_s);
@@ -383,9 +418,25 @@ int main(int argc, char** argv) {
   app.add_option("input", args.input, "g2o (2D or 3D) or TORO 2D pose-graph file")->required();
   app.add_option("--method",
                  args.method,
-                 "none (accept every loop hypothesis), rrr (batch RRR) or irrr (incremental "
-                 "iRRR, hypotheses replayed in arrival order)")
-      ->check(CLI::IsMember({"none", "rrr", "irrr"}))
+                 "none (accept every loop hypothesis), rrr (batch RRR), irrr (incremental "
+                 "iRRR, hypotheses replayed in arrival order), or a robust-kernel baseline over "
+                 "the whole file: dcs (dynamic covariance scaling; a loop is accepted when its "
+                 "final scale is above 0.5) or gnc (graduated non-convexity with truncated least "
+                 "squares, from the dead reckoning; accepted when its final weight is above 0.5)")
+      ->check(CLI::IsMember({"none", "rrr", "irrr", "dcs", "gnc"}))
+      ->capture_default_str();
+  app.add_option("--dcs-phi", args.robust.dcs_phi, "dcs: the kernel's Phi")
+      ->check(CLI::PositiveNumber)
+      ->capture_default_str();
+  app.add_option("--dcs-iterations",
+                 args.robust.dcs_iterations,
+                 "dcs: reweighted Gauss-Newton steps at most")
+      ->check(CLI::PositiveNumber)
+      ->capture_default_str();
+  app.add_option("--gnc-inlier-probability",
+                 args.robust.inlier_probability,
+                 "gnc: an inlier's d^2 is below the chi-square quantile of this probability")
+      ->check(CLI::Range(0.0, 1.0))
       ->capture_default_str();
   app.add_option("--config", args.config, "JSON configuration; only its \"irrr\" object is read");
   app.add_option(
@@ -481,6 +532,10 @@ int main(int argc, char** argv) {
   if (app.count("--max-iterations") > 0) options.optimizer.max_iterations = max_iterations;
   // The file's values were valid: what fails now came from the command line.
   if (irrr::Status s = options.Validate(); !s.ok()) {
+    fmt::print(stderr, "irrr-batch: command line: {}\n", s.message());
+    return EX_USAGE;
+  }
+  if (irrr::Status s = args.robust.Validate(); !s.ok()) {
     fmt::print(stderr, "irrr-batch: command line: {}\n", s.message());
     return EX_USAGE;
   }

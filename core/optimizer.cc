@@ -211,12 +211,13 @@ double Optimizer<Pose>::Linearize(const PoseGraph<Pose>& graph,
     if (!EdgeIsActive(active, e)) continue;
     const typename Pose::Tangent r = RelativePoseResidual<Pose>(
         edge.measurement, estimate[edge.from], estimate[edge.to], &J_from, &J_to);
-    const typename Pose::Tangent weighted_r = edge.information * r;
+    const Matrix information = Weight(e) * edge.information;
+    const typename Pose::Tangent weighted_r = information * r;
     chi2 += r.dot(weighted_r);
     const bool from_free = !fixed[edge.from];
     const bool to_free = !fixed[edge.to];
-    const Matrix Jt_W_from = J_from.transpose() * edge.information;
-    const Matrix Jt_W_to = J_to.transpose() * edge.information;
+    const Matrix Jt_W_from = J_from.transpose() * information;
+    const Matrix Jt_W_to = J_to.transpose() * information;
     if (from_free) {
       add_block(edge.from, edge.from, Jt_W_from * J_from);
       gradient->template segment<d>(edge.from * d) += J_from.transpose() * weighted_r;
@@ -278,7 +279,7 @@ OptimizerSummary Optimizer<Pose>::Solve(const PoseGraph<Pose>& graph,
   auto chi2_at = [&](const std::vector<Pose>& poses) {
     double chi2 = 0.0;
     for (int e = 0; e < graph.num_edges(); ++e) {
-      if (EdgeIsActive(active, e)) chi2 += EdgeChi2(graph.edge(e), poses);
+      if (EdgeIsActive(active, e)) chi2 += Weight(e) * EdgeChi2(graph.edge(e), poses);
     }
     return chi2;
   };
@@ -424,8 +425,20 @@ OptimizerSummary Optimizer<Pose>::Solve(const PoseGraph<Pose>& graph,
   summary.final_chi2 = 0.0;
   for (int e = 0; e < graph.num_edges(); ++e) {
     summary.edge_chi2[e] = EdgeChi2(graph.edge(e), x);
-    if (EdgeIsActive(active, e)) summary.final_chi2 += summary.edge_chi2[e];
+    if (EdgeIsActive(active, e)) summary.final_chi2 += Weight(e) * summary.edge_chi2[e];
   }
+  return summary;
+}
+
+template <class Pose>
+OptimizerSummary Optimizer<Pose>::SolveWeighted(const PoseGraph<Pose>& graph,
+                                                const std::vector<char>& active,
+                                                const std::vector<double>& weights,
+                                                std::vector<Pose>* estimate) {
+  IRRR_CHECK(static_cast<int>(weights.size()) == graph.num_edges());
+  weights_ = &weights;
+  OptimizerSummary summary = Solve(graph, active, estimate);
+  weights_ = nullptr;
   return summary;
 }
 

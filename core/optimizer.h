@@ -97,6 +97,14 @@ class Optimizer {
                          std::vector<Pose>* estimate,
                          double target_chi2 = std::numeric_limits<double>::infinity());
 
+  // The same with the information of each edge e scaled by weights[e] >= 0 (one entry per graph
+  // edge): one step of iteratively reweighted least squares for a robust kernel (robust_solve.h).
+  // chi2 and the step acceptance are the weighted ones; summary.edge_chi2 stays unweighted.
+  OptimizerSummary SolveWeighted(const PoseGraph<Pose>& graph,
+                                 const std::vector<char>& active,
+                                 const std::vector<double>& weights,
+                                 std::vector<Pose>* estimate);
+
   const OptimizerOptions& options() const { return options_; }
 
   // Marginal covariances at a point (the inverse of J'WJ there, in the tangent of Pose::Retract;
@@ -123,6 +131,8 @@ class Optimizer {
                    const std::vector<Pose>& estimate,
                    Eigen::VectorXd* gradient);
   int ValueIndex(int row_vertex, int column_vertex, int row, int column) const;
+  // Edge e's information scale: weights_[e] during SolveWeighted, 1 otherwise.
+  double Weight(int e) const { return weights_ == nullptr ? 1.0 : (*weights_)[e]; }
 
   OptimizerOptions options_;
   SparseCholesky cholesky_;
@@ -130,6 +140,7 @@ class Optimizer {
   std::vector<int> block_column_start_;             // first value index of each block column
   std::vector<int> diagonal_value_index_;           // value index of each scalar diagonal entry
   std::vector<char> covariance_fixed_;  // gauge of the FactorizeAt factorization (empty: none)
+  const std::vector<double>* weights_ = nullptr;  // set only while SolveWeighted runs
 };
 
 // d^2 = r' Omega r of one edge at `estimate` (paper eq. 2).
