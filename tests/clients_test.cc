@@ -513,6 +513,56 @@ TEST_CASE("irrr-corrupt then irrr-batch --method irrr: no injected outlier is ac
   CHECK(optimized_graph.num_edges() == 299 + accepted);
 }
 
+TEST_CASE("irrr-batch --method dcs and gnc: aliased groups refused, decisions as the kernels say",
+          "[tools]") {
+  const std::string dir = TestDirectory("batch_baselines");
+  const std::string clean = dir + "/intel300.g2o";
+  WriteIntelPrefix(300, clean);
+  const std::string corrupted = dir + "/corrupted.g2o";
+  const std::string labels = dir + "/labels.csv";
+  const std::string log = dir + "/log.txt";
+  const std::string corrupt =
+      std::string(IRRR_CORRUPT) + " " + Quoted(clean) + " " + Quoted(corrupted) +
+      " --mode aliased-grouped --count 30 --seed 1 --labels " + Quoted(labels);
+  {
+    const int code = RunTool(corrupt, log);
+    INFO(corrupt << "\n" << ReadText(log));
+    REQUIRE(code == 0);
+  }
+  const std::vector<LabelRow> label_rows = ReadCsv<LabelRow>(labels, &ReadLabelsCsv);
+  for (const std::string method : {"dcs", "gnc"}) {
+    INFO(method);
+    const std::string decisions = dir + "/" + method + ".csv";
+    const std::string batch = std::string(IRRR_BATCH) + " " + Quoted(corrupted) + " --method " +
+                              method + " --decisions " + Quoted(decisions) + " --labels " +
+                              Quoted(labels);
+    const int code = RunTool(batch, log);
+    INFO(batch << "\n" << ReadText(log));
+    REQUIRE(code == 0);
+    CHECK_THAT(ReadText(log), Contains("decide    " + method + ": 201 loops in, "));
+    CHECK_THAT(ReadText(log), Contains("0 of 30 wrong loops accepted"));
+    const std::vector<DecisionRow> rows = ReadCsv<DecisionRow>(decisions, &ReadDecisionsCsv);
+    REQUIRE(rows.size() == label_rows.size());
+    int accepted_true = 0;
+    for (size_t k = 0; k < rows.size(); ++k) {
+      REQUIRE(rows[k].edge_index == label_rows[k].edge_index);
+      const LoopDecision& d = rows[k].decision;
+      const bool accepted = d.state == LoopState::kAccepted;
+      CHECK((accepted || d.state == LoopState::kRejectedLinkTest));
+      if (method == "dcs") {
+        // DCS's scale is above 0.5 exactly when d^2 < 3 Phi, the threshold column.
+        CHECK(d.threshold == 3.0);
+        CHECK(accepted == (d.chi2 < d.threshold));
+      } else {
+        CHECK(d.threshold == Approx(11.3449).epsilon(1e-4));
+      }
+      if (accepted && !label_rows[k].outlier) ++accepted_true;
+    }
+    // Intel's information is not conservative: DCS at Phi 1 leaves a few true loops out.
+    CHECK(accepted_true >= (method == "dcs" ? 165 : 171));
+  }
+}
+
 TEST_CASE("irrr-corrupt splits Intel into four sessions with 600 inter-session outliers",
           "[tools]") {
   // The multi-session experiment of the paper (IV.B).
