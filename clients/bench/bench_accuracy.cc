@@ -14,17 +14,24 @@
 // document (rewritten after every row, so an interrupted run keeps its rows).
 
 #include <sched.h>
+#include <sys/resource.h>
+#include <sys/wait.h>
 #include <sysexits.h>
 #include <unistd.h>
 
 #include <algorithm>
+#include <cerrno>
 #include <chrono>
 #include <cmath>
+#include <cstring>
 #include <ctime>
 #include <fstream>
 #include <functional>
+#include <limits>
+#include <map>
 #include <sstream>
 #include <string>
+#include <type_traits>
 #include <utility>
 #include <vector>
 
@@ -37,6 +44,7 @@
 #include "core/irrr.h"
 #include "core/optimizer.h"
 #include "core/outliers.h"
+#include "core/robust_solve.h"
 #include "core/trajectory_metrics.h"
 #include "daemon/common/allocator.h"
 
@@ -69,6 +77,10 @@ struct Case {
   OutlierMode mode = OutlierMode::kRandom;
   int outliers = 0;
   bool wrong_only = false;  // kLabelled: the true loops removed (a correct answer accepts none)
+  // kSynthetic failure families beyond wrong loops (core/outliers.h): odometry re-drawn with
+  // `odometry_noise` times the noise its information states (0: as given), and odometry faults.
+  double odometry_noise = 0.0;
+  int odometry_faults = 0;
 };
 
 std::vector<Case> AllCases() {
@@ -111,6 +123,46 @@ std::vector<Case> AllCases() {
         k.outliers = count;
         cases.push_back(k);
       }
+    }
+  }
+  // The failure families a real place recognizer and odometry make (perceptual aliasing, odometry
+  // noisier than its information, odometry faults), on the clean datasets above and on M3500b
+  // (Manhattan with much noisier headings), the parking garage and Torus3D.
+  std::vector<Clean> families = clean;
+  families.insert(
+      families.begin() + 1,
+      {"m3500b", "datasets/manhattan/carlone/input_M3500b_g2o.g2o", ReferenceKind::kOracle, ""});
+  families.push_back({"garage", "datasets/garage/parking-garage.g2o", ReferenceKind::kOracle, ""});
+  families.push_back({"torus3d", "datasets/torus3d/torus3D.g2o", ReferenceKind::kOracle, ""});
+  struct Family {
+    std::string name;
+    OutlierMode mode;
+    int outliers;
+    double odometry_noise;
+    int odometry_faults;
+  };
+  const std::vector<Family> family_rows = {
+      {"aliased-300", OutlierMode::kAliased, 300, 0.0, 0},
+      {"aliased-1000", OutlierMode::kAliased, 1000, 0.0, 0},
+      {"aliased-grouped-300", OutlierMode::kAliasedGrouped, 300, 0.0, 0},
+      {"aliased-grouped-1000", OutlierMode::kAliasedGrouped, 1000, 0.0, 0},
+      {"noisy2-random-grouped-1000", OutlierMode::kRandomGrouped, 1000, 2.0, 0},
+      {"noisy3-random-grouped-1000", OutlierMode::kRandomGrouped, 1000, 3.0, 0},
+      {"faults5-random-100", OutlierMode::kRandom, 100, 0.0, 5},
+  };
+  for (const Clean& c : families) {
+    for (const Family& f : family_rows) {
+      Case k;
+      k.name = fmt::format("{}-{}", c.name, f.name);
+      k.kind = CaseKind::kSynthetic;
+      k.graph = c.graph;
+      k.reference = c.reference;
+      k.reference_path = c.reference_path;
+      k.mode = f.mode;
+      k.outliers = f.outliers;
+      k.odometry_noise = f.odometry_noise;
+      k.odometry_faults = f.odometry_faults;
+      cases.push_back(k);
     }
   }
   const char* alphas[] = {"0.00", "0.25", "0.50", "0.75", "1.00"};
@@ -162,19 +214,46 @@ std::vector<Case> AllCases() {
 }
 
 // One algorithm configuration of the matrix.
+enum class Algorithm {
+  kIrrr,  // iRRR, Irrr driven step by step in arrival order
+  kRrr,   // batch RRR (RunBatchRrr)
+  kDcs,   // dynamic covariance scaling (core/robust_solve.h)
+  kGnc,   // graduated non-convexity, truncated least squares (core/robust_solve.h)
+};
+
 struct Method {
-  bool incremental = true;  // iRRR (Irrr driven step by step) or batch RRR (RunBatchRrr)
+  Algorithm algorithm = Algorithm::kIrrr;
   GraphDegreesOfFreedom dof = GraphDegreesOfFreedom::kResidualRows;
   bool paper_faithful = false;
   double alpha = 0.0;             // > 0: overrides the preset's
   double variance_factor = -1.0;  // >= 0: overrides the default (0: estimated)
+
+  bool IsRobustKernel() const {
+    return algorithm == Algorithm::kDcs || algorithm == Algorithm::kGnc;
+  }
 };
 
-std::string MethodName(const Method& m) { return m.incremental ? "irrr" : "rrr"; }
+std::string MethodName(const Method& m) {
+  switch (m.algorithm) {
+    case Algorithm::kIrrr:
+      return "irrr";
+    case Algorithm::kRrr:
+      return "rrr";
+    case Algorithm::kDcs:
+      return "dcs";
+    case Algorithm::kGnc:
+      return "gnc";
+  }
+  return "unknown";
+}
 std::string DofName(GraphDegreesOfFreedom dof) {
   return dof == GraphDegreesOfFreedom::kResidualRows ? "residual_rows" : "exact";
 }
-std::string VariantName(const Method& m) { return m.paper_faithful ? "paper" : "default"; }
+std::string DofName(const Method& m) { return m.IsRobustKernel() ? "-" : DofName(m.dof); }
+std::string VariantName(const Method& m) {
+  if (m.IsRobustKernel()) return "-";
+  return m.paper_faithful ? "paper" : "default";
+}
 
 IrrrOptions OptionsFor(const Method& m) {
   IrrrOptions options = m.paper_faithful ? IrrrOptions::PaperFaithful() : IrrrOptions();
@@ -208,6 +287,20 @@ struct RunResult {
   int steps = -1;            // -1: batch
   int solves = 0;
   std::vector<double> step_ms;
+};
+
+// What one method's run leaves for the table: it runs in a child process (RunInChild), so that
+// its peak memory is its own.
+template <class Pose>
+struct MethodRun {
+  std::vector<char> accepted;  // per graph edge
+  std::vector<Pose> estimate;  // per vertex
+  double seconds = 0.0;
+  double cpu_seconds = 0.0;
+  int steps = -1;  // -1: not incremental
+  int solves = 0;
+  std::vector<double> step_ms;
+  long peak_rss_kb = 0;  // the child's maximum resident set size
 };
 
 // What RunIncrementalIrrr does, with every RunStep timed. Long runs report their progress on
@@ -289,14 +382,19 @@ struct Settings {
   OutlierOptions outliers;  // mode and count come from the case
 };
 
-// One finished row of the table, and what the closing summary line needs.
+// One finished row of the table, and what the closing summary lines need.
 struct Row {
   std::string markdown;
   std::string case_name;
   std::string method;
   std::string configuration;  // graph dof and variant
+  uint32_t seed = 0;
   double seconds = 0.0;
   double cpu_seconds = 0.0;
+  bool labelled = false;
+  int accepted_wrong = 0;
+  double recall = 0.0;
+  double chi2_ratio = 0.0;  // chi2 over the clean edges / the lowest of the run's methods
 };
 
 std::string Fixed(double value, int digits) { return fmt::format("{:.{}f}", value, digits); }
@@ -342,6 +440,172 @@ Status RemoveLoops(const std::vector<char>& remove, PoseGraph<Pose>* graph) {
   return Status::Ok();
 }
 
+// The method's decisions and map on `graph`, timed.
+template <class Pose>
+Status RunMethod(const Case& c,
+                 const Method& method,
+                 const PoseGraph<Pose>& graph,
+                 MethodRun<Pose>* run) {
+  const double cpu_start_s = ProcessCpuSeconds();
+  const auto start = std::chrono::steady_clock::now();
+  run->accepted.assign(graph.num_edges(), 0);
+  if (method.IsRobustKernel()) {
+    RobustOptions options;
+    options.kernel =
+        method.algorithm == Algorithm::kDcs ? RobustKernel::kDcs : RobustKernel::kGncTls;
+    RobustResult<Pose> result;
+    if (Status s = RobustSolve(graph, options, graph.initial_estimate(), &result); !s.ok()) {
+      return s;
+    }
+    for (int e = 0; e < graph.num_edges(); ++e) {
+      run->accepted[e] = graph.edge(e).kind == EdgeKind::kLoop && result.Accepted(e);
+    }
+    run->estimate = std::move(result.estimate);
+    run->solves = result.solver_iterations;
+    run->seconds = SecondsSince(start);
+  } else {
+    std::vector<LoopDecision> decisions;
+    if (method.algorithm == Algorithm::kIrrr) {
+      RunResult result = RunIncrementalTimed(c.name, graph, OptionsFor(method), &run->estimate);
+      decisions = std::move(result.decisions);
+      run->seconds = result.seconds;
+      run->steps = result.steps;
+      run->solves = result.solves;
+      run->step_ms = std::move(result.step_ms);
+    } else {
+      decisions = RunBatchRrr(graph, OptionsFor(method), &run->estimate);
+      run->seconds = SecondsSince(start);
+    }
+    for (int e = 0; e < graph.num_edges(); ++e) {
+      run->accepted[e] =
+          graph.edge(e).kind == EdgeKind::kLoop && decisions[e].state == LoopState::kAccepted;
+    }
+  }
+  run->cpu_seconds = ProcessCpuSeconds() - cpu_start_s;
+  return Status::Ok();
+}
+
+// A MethodRun as numbers through a pipe, and back.
+template <class Pose>
+std::vector<double> Serialize(const MethodRun<Pose>& run) {
+  std::vector<double> out = {run.seconds,
+                             run.cpu_seconds,
+                             static_cast<double>(run.steps),
+                             static_cast<double>(run.solves),
+                             static_cast<double>(run.step_ms.size()),
+                             static_cast<double>(run.accepted.size()),
+                             static_cast<double>(run.estimate.size())};
+  out.insert(out.end(), run.step_ms.begin(), run.step_ms.end());
+  for (char a : run.accepted) out.push_back(a);
+  for (const Pose& pose : run.estimate) {
+    if constexpr (Pose::kDim == 3) {
+      out.insert(out.end(), {pose.translation().x(), pose.translation().y(), pose.yaw_rad()});
+    } else {
+      const Eigen::Quaterniond& q = pose.quaternion();
+      out.insert(out.end(),
+                 {q.w(),
+                  q.x(),
+                  q.y(),
+                  q.z(),
+                  pose.translation().x(),
+                  pose.translation().y(),
+                  pose.translation().z()});
+    }
+  }
+  return out;
+}
+
+template <class Pose>
+bool Deserialize(const std::vector<double>& in, MethodRun<Pose>* run) {
+  constexpr size_t kHeader = 7;
+  constexpr size_t kPoseNumbers = Pose::kDim == 3 ? 3 : 7;
+  if (in.size() < kHeader) return false;
+  const auto num_steps = static_cast<size_t>(in[4]);
+  const auto num_edges = static_cast<size_t>(in[5]);
+  const auto num_poses = static_cast<size_t>(in[6]);
+  if (in.size() != kHeader + num_steps + num_edges + kPoseNumbers * num_poses) return false;
+  run->seconds = in[0];
+  run->cpu_seconds = in[1];
+  run->steps = static_cast<int>(in[2]);
+  run->solves = static_cast<int>(in[3]);
+  auto next = in.begin() + kHeader;
+  run->step_ms.assign(next, next + num_steps);
+  next += num_steps;
+  run->accepted.assign(num_edges, 0);
+  for (size_t e = 0; e < num_edges; ++e) run->accepted[e] = *next++ != 0.0 ? 1 : 0;
+  run->estimate.resize(num_poses);
+  for (size_t v = 0; v < num_poses; ++v, next += kPoseNumbers) {
+    if constexpr (Pose::kDim == 3) {
+      run->estimate[v] = Pose(next[0], next[1], next[2]);
+    } else {
+      run->estimate[v] = Pose(Eigen::Quaterniond(next[0], next[1], next[2], next[3]),
+                              Eigen::Vector3d(next[4], next[5], next[6]));
+    }
+  }
+  return true;
+}
+
+// Moves `size` bytes between `data` and the pipe end `fd` with `io` (read or write), as many
+// calls as it takes; false on an error or an early end of the pipe.
+template <class Buffer, class Io>
+bool Transfer(int fd, Buffer* data, size_t size, Io io) {
+  auto* bytes =
+      reinterpret_cast<std::conditional_t<std::is_const_v<Buffer>, const char, char>*>(data);
+  while (size > 0) {
+    const ssize_t n = io(fd, bytes, size);
+    if (n <= 0) return false;
+    bytes += n;
+    size -= static_cast<size_t>(n);
+  }
+  return true;
+}
+
+// Runs the method in a child process and reads its result back, with the child's peak resident
+// memory (what this process had loaded before the fork included).
+template <class Pose>
+Status RunInChild(const Case& c,
+                  const Method& method,
+                  const PoseGraph<Pose>& graph,
+                  MethodRun<Pose>* run) {
+  int fds[2];
+  if (pipe(fds) != 0) return Status::Error(std::string("pipe: ") + std::strerror(errno));
+  std::fflush(stdout);
+  std::fflush(stderr);
+  const pid_t child = fork();
+  if (child < 0) return Status::Error(std::string("fork: ") + std::strerror(errno));
+  if (child == 0) {
+    close(fds[0]);
+    MethodRun<Pose> result;
+    const Status s = RunMethod(c, method, graph, &result);
+    if (!s.ok()) fmt::print(stderr, "{}: {}: {}\n", c.name, MethodName(method), s.message());
+    const std::vector<double> numbers = s.ok() ? Serialize(result) : std::vector<double>();
+    const size_t count = numbers.size();
+    const bool written = Transfer(fds[1], &count, sizeof(count), write) &&
+                         Transfer(fds[1], numbers.data(), count * sizeof(double), write);
+    close(fds[1]);
+    _exit(s.ok() && written ? 0 : 1);
+  }
+  close(fds[1]);
+  size_t count = 0;
+  std::vector<double> numbers;
+  bool read_ok = Transfer(fds[0], &count, sizeof(count), read);
+  if (read_ok) {
+    numbers.resize(count);
+    read_ok = Transfer(fds[0], numbers.data(), count * sizeof(double), read);
+  }
+  close(fds[0]);
+  int status = 0;
+  rusage usage{};
+  if (wait4(child, &status, 0, &usage) != child) {
+    return Status::Error(std::string("wait4: ") + std::strerror(errno));
+  }
+  if (!WIFEXITED(status) || WEXITSTATUS(status) != 0 || !read_ok || !Deserialize(numbers, run)) {
+    return Status::Error("the run failed (see above)");
+  }
+  run->peak_rss_kb = usage.ru_maxrss;
+  return Status::Ok();
+}
+
 template <class Pose>
 Status RunCase(const Case& c,
                const Settings& settings,
@@ -355,6 +619,32 @@ Status RunCase(const Case& c,
   std::vector<int> unused;
   if (Status s = LoadPoseGraph(path, format, ReadOptions(), &file, &graph, &unused); !s.ok()) {
     return s;
+  }
+  // Odometry failures first (they change the file's odometry and its dead reckoning), then the
+  // wrong loops on the graph they leave.
+  std::string odometry_note;
+  std::vector<char> is_fault(graph.num_edges(), 0);
+  if (c.odometry_noise > 0.0 || c.odometry_faults > 0) {
+    std::vector<int> fault_file_edges;
+    if (c.odometry_noise > 0.0) {
+      if (Status s = PerturbOdometry(c.odometry_noise, settings.outliers.seed, &file); !s.ok()) {
+        return s;
+      }
+      odometry_note = fmt::format("odometry noise x{:g}, ", c.odometry_noise);
+    }
+    if (c.odometry_faults > 0) {
+      if (Status s = InjectOdometryFaults(
+              c.odometry_faults, settings.outliers.seed, &file, &fault_file_edges);
+          !s.ok()) {
+        return s;
+      }
+      odometry_note += fmt::format("{} odometry faults, ", c.odometry_faults);
+    }
+    std::vector<int> graph_edge_of_file_edge;
+    graph = PoseGraph<Pose>();
+    if (Status s = BuildPoseGraph(file, &graph, &graph_edge_of_file_edge); !s.ok()) return s;
+    is_fault.assign(graph.num_edges(), 0);
+    for (int k : fault_file_edges) is_fault[graph_edge_of_file_edge[k]] = 1;
   }
 
   // Labels: which loop edges are true (all 0 and `labelled` false for an unlabelled graph).
@@ -375,12 +665,15 @@ Status RunCase(const Case& c,
         return s;
       }
       is_true.push_back(0);
+      is_fault.push_back(0);
     }
-    outlier_note = IsGrouped(c.mode) ? fmt::format("{} {}, groups of {}",
-                                                   links.size(),
-                                                   OutlierModeName(c.mode),
-                                                   std::max(1, options.group_size))
-                                     : fmt::format("{} {}", links.size(), OutlierModeName(c.mode));
+    outlier_note =
+        odometry_note + (IsGrouped(c.mode)
+                             ? fmt::format("{} {}, groups of {}",
+                                           links.size(),
+                                           OutlierModeName(c.mode),
+                                           std::max(1, options.group_size))
+                             : fmt::format("{} {}", links.size(), OutlierModeName(c.mode)));
   } else if (c.kind == CaseKind::kLabelled) {
     if constexpr (Pose::kDim == 3) {
       int unmatched = 0;
@@ -394,6 +687,7 @@ Status RunCase(const Case& c,
       outlier_note = "place recognition";
       if (c.wrong_only) {
         if (Status s = RemoveLoops(is_true, &graph); !s.ok()) return s;
+        is_fault.assign(graph.num_edges(), 0);
         is_true.assign(graph.num_edges(), 0);
         outlier_note = "place recognition, true loops removed";
       }
@@ -479,46 +773,75 @@ Status RunCase(const Case& c,
       ComponentAte(
           graph, graph.OdometryEstimate(), reference, std::vector<char>(graph.num_edges(), 0)));
 
+  // The clean edges: odometry that is not a fault, and the true loops. Every method's map is
+  // scored by its chi2 over them, beside the lowest any method of the run reached.
+  std::vector<char> clean(graph.num_edges(), 0);
+  for (int e = 0; e < graph.num_edges(); ++e) {
+    clean[e] = graph.edge(e).kind == EdgeKind::kOdometry ? !is_fault[e] : is_true[e];
+  }
+  auto clean_chi2 = [&](const std::vector<Pose>& estimate) {
+    double chi2 = 0.0;
+    for (int e = 0; e < graph.num_edges(); ++e) {
+      if (clean[e]) chi2 += EdgeChi2(graph.edge(e), estimate);
+    }
+    return chi2;
+  };
+  if (labelled)
+    fmt::print(
+        stderr, "{}: chi2 of the oracle over the clean edges {:.6g}\n", c.name, clean_chi2(oracle));
+
+  std::vector<MethodRun<Pose>> runs;
   for (const Method& method : settings.methods) {
     fmt::print(stderr,
                "running {} {} {} {} ...\n",
                c.name,
                MethodName(method),
-               DofName(method.dof),
+               DofName(method),
                VariantName(method));
-    const IrrrOptions options = OptionsFor(method);
-    std::vector<Pose> estimate;
-    RunResult run;
-    const double cpu_start_s = ProcessCpuSeconds();
-    if (method.incremental) {
-      run = RunIncrementalTimed(c.name, graph, options, &estimate);
-    } else {
-      const auto start = std::chrono::steady_clock::now();
-      run.decisions = RunBatchRrr(graph, options, &estimate);
-      run.seconds = SecondsSince(start);
+    MethodRun<Pose> run;
+    if (Status s = RunInChild(c, method, graph, &run); !s.ok()) {
+      return Status::Error(MethodName(method) + ": " + s.message());
     }
-    run.cpu_seconds = ProcessCpuSeconds() - cpu_start_s;
-    std::vector<char> accepted(graph.num_edges(), 0);
+    runs.push_back(std::move(run));
+  }
+  std::vector<double> chi2(runs.size(), 0.0);
+  double lowest_chi2 = std::numeric_limits<double>::infinity();
+  for (size_t m = 0; m < runs.size(); ++m) {
+    chi2[m] = clean_chi2(runs[m].estimate);
+    lowest_chi2 = std::min(lowest_chi2, chi2[m]);
+  }
+  for (size_t m = 0; m < runs.size(); ++m) {
+    const Method& method = settings.methods[m];
+    const MethodRun<Pose>& run = runs[m];
     int accepted_true = 0;
     int accepted_false = 0;
     for (int e = 0; e < graph.num_edges(); ++e) {
-      if (graph.edge(e).kind != EdgeKind::kLoop) continue;
-      if (run.decisions[e].state != LoopState::kAccepted) continue;
-      accepted[e] = 1;
+      if (graph.edge(e).kind != EdgeKind::kLoop || !run.accepted[e]) continue;
       (is_true[e] ? accepted_true : accepted_false) += 1;
     }
     const int accepted_all = accepted_true + accepted_false;
-    const double ate = ComponentAte(graph, estimate, reference, accepted);
+    const double ate = ComponentAte(graph, run.estimate, reference, run.accepted);
     std::string precision = "-";
     std::string recall = "-";
     std::string ratio = "-";
+    std::string chi2_text = "-";
+    std::string lowest_text = "-";
+    std::string chi2_ratio = "-";
     if (labelled) {
+      // Four digits where three would round a wrong acceptance away (2099 of 2100: 0.9995).
       precision =
-          accepted_all > 0 ? Fixed(static_cast<double>(accepted_true) / accepted_all, 3) : "-";
+          accepted_all == 0     ? "-"
+          : accepted_false == 0 ? Fixed(1.0, 3)
+          : accepted_true == 0
+              ? Fixed(0.0, 3)
+              : Fixed(std::min(0.9999, static_cast<double>(accepted_true) / accepted_all), 4);
       recall = true_loops > 0 ? Fixed(static_cast<double>(accepted_true) / true_loops, 3) : "-";
       if (c.reference != ReferenceKind::kOracle && oracle_value > 0.0) {
         ratio = Fixed(ate / oracle_value, 2);
       }
+      chi2_text = fmt::format("{:.6g}", chi2[m]);
+      lowest_text = fmt::format("{:.6g}", lowest_chi2);
+      chi2_ratio = Fixed(chi2[m] / lowest_chi2, 3);
     }
     std::string latency = "- | - | - | -";
     std::string steps = "-";
@@ -533,20 +856,29 @@ Status RunCase(const Case& c,
                               Percentile(sorted, 0.99),
                               sorted.back());
       }
+    } else if (method.IsRobustKernel()) {
+      steps = fmt::format("- ({} solves)", run.solves);
     }
     Row row;
     row.case_name = c.name;
     row.method = MethodName(method);
-    row.configuration = DofName(method.dof) + ", " + VariantName(method);
+    row.configuration = DofName(method) + ", " + VariantName(method);
+    row.seed = settings.outliers.seed;
     row.seconds = run.seconds;
     row.cpu_seconds = run.cpu_seconds;
+    row.labelled = labelled;
+    row.accepted_wrong = accepted_false;
+    row.recall = true_loops > 0 ? static_cast<double>(accepted_true) / true_loops : 1.0;
+    row.chi2_ratio = labelled ? chi2[m] / lowest_chi2 : 1.0;
+    // Odometry faults found: no method reports them yet.
+    const std::string faults = c.odometry_faults > 0 ? "-" : "";
     row.markdown = fmt::format(
-        "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.2f} "
-        "| {:.2f} | {} | {} |",
+        "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} "
+        "| {} | {} | {:.2f} | {:.2f} | {:.0f} | {} | {} |",
         c.name,
         outlier_note,
         MethodName(method),
-        DofName(method.dof),
+        DofName(method),
         VariantName(method),
         graph.num_vertices(),
         labelled ? fmt::format("{}/{}", true_loops, false_loops)
@@ -556,12 +888,17 @@ Status RunCase(const Case& c,
         labelled ? std::to_string(accepted_false) : "-",
         precision,
         recall,
+        faults,
+        chi2_text,
+        lowest_text,
+        chi2_ratio,
         Fixed(ate, 3),
         oracle_ate,
         ratio,
         reference.label,
         run.seconds,
         run.cpu_seconds,
+        run.peak_rss_kb / 1024.0,
         steps,
         latency);
     emit(row);
@@ -569,12 +906,53 @@ Status RunCase(const Case& c,
   return Status::Ok();
 }
 
+// One line per case and method configuration over the seeds of a sweep.
+std::string SweepSummary(const std::vector<Row>& rows) {
+  std::vector<std::pair<std::string, std::string>> keys;
+  for (const Row& r : rows) {
+    const auto key = std::make_pair(r.case_name, r.method + " (" + r.configuration + ")");
+    if (std::find(keys.begin(), keys.end(), key) == keys.end()) keys.push_back(key);
+  }
+  std::string out = "Sweep: per case and method, over its seeds:\n\n";
+  for (const auto& [case_name, method] : keys) {
+    std::vector<double> recalls;
+    int none_wrong = 0;
+    int near_lowest = 0;
+    const Row* worst = nullptr;
+    for (const Row& r : rows) {
+      if (r.case_name != case_name || r.method + " (" + r.configuration + ")" != method) continue;
+      recalls.push_back(r.recall);
+      none_wrong += r.accepted_wrong == 0 ? 1 : 0;
+      near_lowest += r.chi2_ratio <= 1.01 ? 1 : 0;
+      if (worst == nullptr || r.accepted_wrong > worst->accepted_wrong ||
+          (r.accepted_wrong == worst->accepted_wrong && r.recall < worst->recall)) {
+        worst = &r;
+      }
+    }
+    std::sort(recalls.begin(), recalls.end());
+    out += fmt::format(
+        "* {} {}: {} runs, {} with no wrong loop, worst seed {} ({} wrong, recall {:.3f}), "
+        "median recall {:.3f}, chi2 within 1% of the lowest in {}\n",
+        case_name,
+        method,
+        recalls.size(),
+        none_wrong,
+        worst->seed,
+        worst->accepted_wrong,
+        worst->recall,
+        recalls[(recalls.size() - 1) / 2],
+        near_lowest);
+  }
+  return out;
+}
+
 const char* kTableHeader =
-    "| case | outliers | method | graph dof | variant | poses | loops true/false | accepted | "
-    "acc. true | acc. false | precision | recall | ATE m | oracle ATE m | ATE/oracle | "
-    "reference | time s | cpu s | steps | step p50 ms | p90 ms | p99 ms | max ms |\n"
+    "| case | failures | method | graph dof | variant | poses | loops true/false | accepted | "
+    "acc. true | acc. false | precision | recall | faults found | chi2 clean | lowest chi2 | "
+    "chi2/lowest | ATE m | oracle ATE m | ATE/oracle | reference | time s | cpu s | peak MB | "
+    "steps | step p50 ms | p90 ms | p99 ms | max ms |\n"
     "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
-    "\n";
+    "---|---|---|---|---|\n";
 
 std::string CpuModel() {
   std::ifstream in("/proc/cpuinfo");
@@ -666,6 +1044,14 @@ int main(int argc, char** argv) {
                  variance_factor,
                  "fixed variance factor of the information (0: estimated; default: the variant's)");
   app.add_option("--seed", outliers.seed, "seed of the synthetic outliers")->capture_default_str();
+  std::string seed_range;
+  auto* seeds_option = app.add_option(
+      "--seeds",
+      seed_range,
+      "A-B: run every synthetic case with each seed from A to B, and end with a summary line per "
+      "case and method (runs with no wrong loop, the worst run, the median recall, runs whose "
+      "chi2 over the clean edges is within 1% of the lowest)");
+  app.get_option("--seed")->excludes(seeds_option);
   app.add_option("--group-size", outliers.group_size, "links per group of grouped outliers")
       ->check(CLI::PositiveNumber)
       ->capture_default_str();
@@ -673,6 +1059,19 @@ int main(int argc, char** argv) {
   app.add_flag("--list", list, "print the case names (after --filter) and exit");
   CLI11_PARSE(app, argc, argv);
   if (paper_faithful) variant = "paper";
+  std::vector<uint32_t> seeds = {outliers.seed};
+  if (!seed_range.empty()) {
+    unsigned first = 0;
+    unsigned last = 0;
+    char dash = 0;
+    std::istringstream range(seed_range);
+    if (!(range >> first >> dash >> last) || dash != '-' || last < first || !range.eof()) {
+      fmt::print(stderr, "--seeds: expected A-B with A <= B, got '{}'\n", seed_range);
+      return EX_USAGE;
+    }
+    seeds.clear();
+    for (unsigned seed = first; seed <= last; ++seed) seeds.push_back(seed);
+  }
 
   std::vector<irrr::Case> cases;
   const std::vector<irrr::Case> all = irrr::AllCases();
@@ -701,14 +1100,29 @@ int main(int argc, char** argv) {
   if (variant == "paper" || variant == "both") variants.push_back(true);
   std::stringstream method_names(methods_option);
   std::string name;
+  const std::map<std::string, irrr::Algorithm> algorithms = {{"irrr", irrr::Algorithm::kIrrr},
+                                                             {"rrr", irrr::Algorithm::kRrr},
+                                                             {"dcs", irrr::Algorithm::kDcs},
+                                                             {"gnc", irrr::Algorithm::kGnc}};
   while (std::getline(method_names, name, ',')) {
-    if (name != "irrr" && name != "rrr") {
-      fmt::print(stderr, "--methods: unknown method '{}' (irrr, rrr)\n", name);
+    const auto found = algorithms.find(name);
+    if (found == algorithms.end()) {
+      fmt::print(stderr, "--methods: unknown method '{}' (irrr, rrr, dcs, gnc)\n", name);
       return EX_USAGE;
+    }
+    irrr::Method method;
+    method.algorithm = found->second;
+    method.alpha = alpha;
+    method.variance_factor = variance_factor;
+    if (method.IsRobustKernel()) {
+      settings.methods.push_back(method);  // neither graph dof nor variant applies
+      continue;
     }
     for (irrr::GraphDegreesOfFreedom dof : dofs) {
       for (bool p : variants) {
-        settings.methods.push_back({name == "irrr", dof, p, alpha, variance_factor});
+        method.dof = dof;
+        method.paper_faithful = p;
+        settings.methods.push_back(method);
       }
     }
   }
@@ -726,6 +1140,7 @@ int main(int argc, char** argv) {
   std::vector<std::string> failures;
   auto summary_lines = [&]() {
     std::string out;
+    if (seeds.size() > 1) out += irrr::SweepSummary(rows);
     for (const irrr::Row& r : rows) {
       if (r.case_name == "manhattan-random-1000" && r.method == "irrr") {
         out += fmt::format(
@@ -799,20 +1214,25 @@ int main(int argc, char** argv) {
     }
   };
   for (const irrr::Case& c : cases) {
-    const std::string path = shared + "/" + c.graph;
-    irrr::FileFormat format;
-    int dimension = 0;
-    irrr::Status status = irrr::InspectGraphFile(path, &format, &dimension);
-    if (status.ok()) {
-      status = dimension == 2 ? irrr::RunCase<irrr::Pose2>(c, settings, emit)
-                              : irrr::RunCase<irrr::Pose3>(c, settings, emit);
-    }
-    if (!status.ok()) {
-      failures.push_back(c.name + ": " + status.message());
-      fmt::print(stderr, "{}: failed: {}\n", c.name, status.message());
-      if (irrr::Status s = write_document(); !s.ok() && !write_failed) {
-        fmt::print(stderr, "{}\n", s.message());
-        write_failed = true;
+    // Only the synthetic failures depend on the seed.
+    const size_t case_seeds = c.kind == irrr::CaseKind::kSynthetic ? seeds.size() : 1;
+    for (size_t k = 0; k < case_seeds; ++k) {
+      settings.outliers.seed = seeds[k];
+      const std::string path = shared + "/" + c.graph;
+      irrr::FileFormat format;
+      int dimension = 0;
+      irrr::Status status = irrr::InspectGraphFile(path, &format, &dimension);
+      if (status.ok()) {
+        status = dimension == 2 ? irrr::RunCase<irrr::Pose2>(c, settings, emit)
+                                : irrr::RunCase<irrr::Pose3>(c, settings, emit);
+      }
+      if (!status.ok()) {
+        failures.push_back(fmt::format("{} (seed {}): {}", c.name, seeds[k], status.message()));
+        fmt::print(stderr, "{}: failed: {}\n", c.name, status.message());
+        if (irrr::Status s = write_document(); !s.ok() && !write_failed) {
+          fmt::print(stderr, "{}\n", s.message());
+          write_failed = true;
+        }
       }
     }
   }
