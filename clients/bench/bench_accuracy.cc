@@ -13,7 +13,9 @@
 // poses). Each row goes to stdout as soon as it is done; --output writes a complete Markdown
 // document (rewritten after every row, so an interrupted run keeps its rows).
 
+#include <poll.h>
 #include <sched.h>
+#include <signal.h>
 #include <sys/resource.h>
 #include <sys/wait.h>
 #include <sysexits.h>
@@ -301,6 +303,7 @@ struct MethodRun {
   int solves = 0;
   std::vector<double> step_ms;
   long peak_rss_kb = 0;  // the child's maximum resident set size
+  bool stopped = false;  // ran past Settings::method_seconds and was stopped: no result
 };
 
 // What RunIncrementalIrrr does, with every RunStep timed. Long runs report their progress on
@@ -379,7 +382,8 @@ double ComponentAte(const PoseGraph<Pose>& graph,
 struct Settings {
   std::string shared;
   std::vector<Method> methods;
-  OutlierOptions outliers;  // mode and count come from the case
+  OutlierOptions outliers;      // mode and count come from the case
+  double method_seconds = 0.0;  // > 0: a method's run is stopped after this long
 };
 
 // One finished row of the table, and what the closing summary lines need.
@@ -395,6 +399,7 @@ struct Row {
   int accepted_wrong = 0;
   double recall = 0.0;
   double chi2_ratio = 0.0;  // chi2 over the clean edges / the lowest of the run's methods
+  bool stopped = false;     // the method ran past --method-seconds
 };
 
 std::string Fixed(double value, int digits) { return fmt::format("{:.{}f}", value, digits); }
@@ -562,10 +567,13 @@ bool Transfer(int fd, Buffer* data, size_t size, Io io) {
 
 // Runs the method in a child process and reads its result back, with the child's peak resident
 // memory (what this process had loaded before the fork included).
+// With `limit_seconds` > 0, a child still running after that long is killed and the run marked
+// stopped.
 template <class Pose>
 Status RunInChild(const Case& c,
                   const Method& method,
                   const PoseGraph<Pose>& graph,
+                  double limit_seconds,
                   MethodRun<Pose>* run) {
   int fds[2];
   if (pipe(fds) != 0) return Status::Error(std::string("pipe: ") + std::strerror(errno));
@@ -586,6 +594,18 @@ Status RunInChild(const Case& c,
     _exit(s.ok() && written ? 0 : 1);
   }
   close(fds[1]);
+  // The child writes only when done: waiting for its first byte is waiting for the run.
+  if (limit_seconds > 0.0) {
+    pollfd ready{fds[0], POLLIN, 0};
+    if (poll(&ready, 1, static_cast<int>(1e3 * limit_seconds)) == 0) {
+      kill(child, SIGKILL);
+      waitpid(child, nullptr, 0);
+      close(fds[0]);
+      run->stopped = true;
+      run->seconds = limit_seconds;
+      return Status::Ok();
+    }
+  }
   size_t count = 0;
   std::vector<double> numbers;
   bool read_ok = Transfer(fds[0], &count, sizeof(count), read);
@@ -799,7 +819,7 @@ Status RunCase(const Case& c,
                DofName(method),
                VariantName(method));
     MethodRun<Pose> run;
-    if (Status s = RunInChild(c, method, graph, &run); !s.ok()) {
+    if (Status s = RunInChild(c, method, graph, settings.method_seconds, &run); !s.ok()) {
       return Status::Error(MethodName(method) + ": " + s.message());
     }
     runs.push_back(std::move(run));
@@ -807,12 +827,32 @@ Status RunCase(const Case& c,
   std::vector<double> chi2(runs.size(), 0.0);
   double lowest_chi2 = std::numeric_limits<double>::infinity();
   for (size_t m = 0; m < runs.size(); ++m) {
+    if (runs[m].stopped) continue;
     chi2[m] = clean_chi2(runs[m].estimate);
     lowest_chi2 = std::min(lowest_chi2, chi2[m]);
   }
   for (size_t m = 0; m < runs.size(); ++m) {
     const Method& method = settings.methods[m];
     const MethodRun<Pose>& run = runs[m];
+    if (run.stopped) {
+      Row row;
+      row.case_name = c.name;
+      row.method = MethodName(method);
+      row.configuration = DofName(method) + ", " + VariantName(method);
+      row.seed = settings.outliers.seed;
+      row.seconds = run.seconds;
+      row.stopped = true;
+      row.markdown = fmt::format("| {} | {} | {} | {} | {} | {} | stopped after {:.0f} s |",
+                                 c.name,
+                                 outlier_note,
+                                 MethodName(method),
+                                 DofName(method),
+                                 VariantName(method),
+                                 graph.num_vertices(),
+                                 run.seconds);
+      emit(row);
+      continue;
+    }
     int accepted_true = 0;
     int accepted_false = 0;
     for (int e = 0; e < graph.num_edges(); ++e) {
@@ -916,11 +956,16 @@ std::string SweepSummary(const std::vector<Row>& rows) {
   std::string out = "Sweep: per case and method, over its seeds:\n\n";
   for (const auto& [case_name, method] : keys) {
     std::vector<double> recalls;
+    int stopped = 0;
     int none_wrong = 0;
     int near_lowest = 0;
     const Row* worst = nullptr;
     for (const Row& r : rows) {
       if (r.case_name != case_name || r.method + " (" + r.configuration + ")" != method) continue;
+      if (r.stopped) {
+        ++stopped;
+        continue;
+      }
       recalls.push_back(r.recall);
       none_wrong += r.accepted_wrong == 0 ? 1 : 0;
       near_lowest += r.chi2_ratio <= 1.01 ? 1 : 0;
@@ -930,9 +975,13 @@ std::string SweepSummary(const std::vector<Row>& rows) {
       }
     }
     std::sort(recalls.begin(), recalls.end());
+    if (recalls.empty()) {
+      out += fmt::format("* {} {}: every run stopped\n", case_name, method);
+      continue;
+    }
     out += fmt::format(
         "* {} {}: {} runs, {} with no wrong loop, worst seed {} ({} wrong, recall {:.3f}), "
-        "median recall {:.3f}, chi2 within 1% of the lowest in {}\n",
+        "median recall {:.3f}, chi2 within 1% of the lowest in {}{}\n",
         case_name,
         method,
         recalls.size(),
@@ -941,7 +990,8 @@ std::string SweepSummary(const std::vector<Row>& rows) {
         worst->accepted_wrong,
         worst->recall,
         recalls[(recalls.size() - 1) / 2],
-        near_lowest);
+        near_lowest,
+        stopped > 0 ? fmt::format(", {} stopped", stopped) : std::string());
   }
   return out;
 }
@@ -1052,6 +1102,11 @@ int main(int argc, char** argv) {
       "case and method (runs with no wrong loop, the worst run, the median recall, runs whose "
       "chi2 over the clean edges is within 1% of the lowest)");
   app.get_option("--seed")->excludes(seeds_option);
+  double method_seconds = 0.0;
+  app.add_option("--method-seconds",
+                 method_seconds,
+                 "stop a method's run after this long and say so in its row (0: never)")
+      ->check(CLI::NonNegativeNumber);
   app.add_option("--group-size", outliers.group_size, "links per group of grouped outliers")
       ->check(CLI::PositiveNumber)
       ->capture_default_str();
@@ -1092,6 +1147,7 @@ int main(int argc, char** argv) {
   irrr::Settings settings;
   settings.shared = shared;
   settings.outliers = outliers;
+  settings.method_seconds = method_seconds;
   std::vector<irrr::GraphDegreesOfFreedom> dofs;
   if (graph_dof != "exact") dofs.push_back(irrr::GraphDegreesOfFreedom::kResidualRows);
   if (graph_dof != "residual_rows") dofs.push_back(irrr::GraphDegreesOfFreedom::kExact);
