@@ -13,19 +13,13 @@
 // poses). Each row goes to stdout as soon as it is done; --output writes a complete Markdown
 // document (rewritten after every row, so an interrupted run keeps its rows).
 
-#include <poll.h>
 #include <sched.h>
-#include <signal.h>
-#include <sys/resource.h>
-#include <sys/wait.h>
 #include <sysexits.h>
 #include <unistd.h>
 
 #include <algorithm>
-#include <cerrno>
 #include <chrono>
 #include <cmath>
-#include <cstring>
 #include <ctime>
 #include <fstream>
 #include <functional>
@@ -33,13 +27,13 @@
 #include <map>
 #include <sstream>
 #include <string>
-#include <type_traits>
 #include <utility>
 #include <vector>
 
 #include <fmt/core.h>
 #include <CLI/CLI.hpp>
 
+#include "clients/bench/child_process.h"
 #include "clients/bench/reference_files.h"
 #include "clients/common/graph_files.h"
 #include "clients/common/progress_line.h"
@@ -550,79 +544,34 @@ bool Deserialize(const std::vector<double>& in, MethodRun<Pose>* run) {
   return true;
 }
 
-// Moves `size` bytes between `data` and the pipe end `fd` with `io` (read or write), as many
-// calls as it takes; false on an error or an early end of the pipe.
-template <class Buffer, class Io>
-bool Transfer(int fd, Buffer* data, size_t size, Io io) {
-  auto* bytes =
-      reinterpret_cast<std::conditional_t<std::is_const_v<Buffer>, const char, char>*>(data);
-  while (size > 0) {
-    const ssize_t n = io(fd, bytes, size);
-    if (n <= 0) return false;
-    bytes += n;
-    size -= static_cast<size_t>(n);
-  }
-  return true;
-}
-
-// Runs the method in a child process and reads its result back, with the child's peak resident
-// memory (what this process had loaded before the fork included).
-// With `limit_seconds` > 0, a child still running after that long is killed and the run marked
-// stopped.
+// Runs the method in a child process (child_process.h) and reads its result back, with the
+// child's peak resident memory (what this process had loaded before the fork included). With
+// `limit_seconds` > 0, a run still going after that long is stopped and marked so.
 template <class Pose>
 Status RunInChild(const Case& c,
                   const Method& method,
                   const PoseGraph<Pose>& graph,
                   double limit_seconds,
                   MethodRun<Pose>* run) {
-  int fds[2];
-  if (pipe(fds) != 0) return Status::Error(std::string("pipe: ") + std::strerror(errno));
-  std::fflush(stdout);
-  std::fflush(stderr);
-  const pid_t child = fork();
-  if (child < 0) return Status::Error(std::string("fork: ") + std::strerror(errno));
-  if (child == 0) {
-    close(fds[0]);
+  auto work = [&](std::vector<double>* numbers) {
     MethodRun<Pose> result;
     const Status s = RunMethod(c, method, graph, &result);
-    if (!s.ok()) fmt::print(stderr, "{}: {}: {}\n", c.name, MethodName(method), s.message());
-    const std::vector<double> numbers = s.ok() ? Serialize(result) : std::vector<double>();
-    const size_t count = numbers.size();
-    const bool written = Transfer(fds[1], &count, sizeof(count), write) &&
-                         Transfer(fds[1], numbers.data(), count * sizeof(double), write);
-    close(fds[1]);
-    _exit(s.ok() && written ? 0 : 1);
-  }
-  close(fds[1]);
-  // The child writes only when done: waiting for its first byte is waiting for the run.
-  if (limit_seconds > 0.0) {
-    pollfd ready{fds[0], POLLIN, 0};
-    if (poll(&ready, 1, static_cast<int>(1e3 * limit_seconds)) == 0) {
-      kill(child, SIGKILL);
-      waitpid(child, nullptr, 0);
-      close(fds[0]);
-      run->stopped = true;
-      run->seconds = limit_seconds;
-      return Status::Ok();
+    if (!s.ok()) {
+      fmt::print(stderr, "{}: {}: {}\n", c.name, MethodName(method), s.message());
+      return false;
     }
+    *numbers = Serialize(result);
+    return true;
+  };
+  ChildResult child;
+  if (Status s = RunInChildProcess(work, limit_seconds, &child); !s.ok()) return s;
+  if (child.stopped) {
+    run->stopped = true;
+    run->seconds = limit_seconds;
+    return Status::Ok();
   }
-  size_t count = 0;
-  std::vector<double> numbers;
-  bool read_ok = Transfer(fds[0], &count, sizeof(count), read);
-  if (read_ok) {
-    numbers.resize(count);
-    read_ok = Transfer(fds[0], numbers.data(), count * sizeof(double), read);
-  }
-  close(fds[0]);
-  int status = 0;
-  rusage usage{};
-  if (wait4(child, &status, 0, &usage) != child) {
-    return Status::Error(std::string("wait4: ") + std::strerror(errno));
-  }
-  if (!WIFEXITED(status) || WEXITSTATUS(status) != 0 || !read_ok || !Deserialize(numbers, run)) {
-    return Status::Error("the run failed (see above)");
-  }
-  run->peak_rss_kb = usage.ru_maxrss;
+  if (!Deserialize(child.numbers, run)) return Status::Error("the run's result did not read back");
+  run->peak_rss_kb = child.peak_rss_kb;
   return Status::Ok();
 }
 
@@ -834,13 +783,13 @@ Status RunCase(const Case& c,
   for (size_t m = 0; m < runs.size(); ++m) {
     const Method& method = settings.methods[m];
     const MethodRun<Pose>& run = runs[m];
+    Row row;
+    row.case_name = c.name;
+    row.method = MethodName(method);
+    row.configuration = DofName(method) + ", " + VariantName(method);
+    row.seed = settings.outliers.seed;
+    row.seconds = run.seconds;
     if (run.stopped) {
-      Row row;
-      row.case_name = c.name;
-      row.method = MethodName(method);
-      row.configuration = DofName(method) + ", " + VariantName(method);
-      row.seed = settings.outliers.seed;
-      row.seconds = run.seconds;
       row.stopped = true;
       row.markdown = fmt::format("| {} | {} | {} | {} | {} | {} | stopped after {:.0f} s |",
                                  c.name,
@@ -899,12 +848,6 @@ Status RunCase(const Case& c,
     } else if (method.IsRobustKernel()) {
       steps = fmt::format("- ({} solves)", run.solves);
     }
-    Row row;
-    row.case_name = c.name;
-    row.method = MethodName(method);
-    row.configuration = DofName(method) + ", " + VariantName(method);
-    row.seed = settings.outliers.seed;
-    row.seconds = run.seconds;
     row.cpu_seconds = run.cpu_seconds;
     row.labelled = labelled;
     row.accepted_wrong = accepted_false;
