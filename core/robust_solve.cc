@@ -66,11 +66,10 @@ class RobustSolver {
       solves += summary.iterations;
       if (!summary.IsSolutionUsable()) return Status::Error("DCS: " + summary.message);
     }
-    const std::vector<double> chi2 = LoopChi2(graph_, estimate);
     Finish(estimate, result);
     for (int e = 0; e < graph_.num_edges(); ++e) {
       if (graph_.edge(e).kind != EdgeKind::kLoop) continue;
-      result->weight[e] = DcsScale(options_.dcs_phi, chi2[e]);
+      result->weight[e] = DcsScale(options_.dcs_phi, result->edge_chi2[e]);
       result->threshold[e] = 3.0 * options_.dcs_phi;
     }
     result->outer_iterations = outer;
