@@ -4,6 +4,7 @@
 //   irrr-bench-accuracy [--shared ../shared] [--filter SUBSTRING] [--methods irrr,rrr]
 //                       [--graph-dof residual_rows|exact|both]
 //                       [--paper-faithful | --variant default|paper|both]
+//                       [--order forward|reversed|both]
 //                       [--seed N] [--group-size N] [--output FILE] [--list]
 //
 // Cases: synthetic outliers (core/outliers.h, appended to a clean graph, labels known) on
@@ -11,7 +12,9 @@
 // graphs at five alpha levels (per-file labels); Bicocca 25b at five alpha levels (no labels; ATE
 // against GPS associated by time); Bovisa 04 and 06 (no labels; ATE against one GPS fix per 10
 // poses). Each row goes to stdout as soon as it is done; --output writes a complete Markdown
-// document (rewritten after every row, so an interrupted run keeps its rows).
+// document (rewritten after every row, so an interrupted run keeps its rows). --order reversed
+// runs iRRR and RRR on every session driven backwards (clients/bench/order_runs.h); --order both
+// runs iRRR in both orders and counts the loops accepted in one order only.
 
 #include <sched.h>
 #include <sysexits.h>
@@ -34,6 +37,7 @@
 #include <CLI/CLI.hpp>
 
 #include "clients/bench/child_process.h"
+#include "clients/bench/order_runs.h"
 #include "clients/bench/reference_files.h"
 #include "clients/common/graph_files.h"
 #include "clients/common/progress_line.h"
@@ -378,6 +382,8 @@ struct Settings {
   std::vector<Method> methods;
   OutlierOptions outliers;      // mode and count come from the case
   double method_seconds = 0.0;  // > 0: a method's run is stopped after this long
+  // Which order iRRR and RRR see the sessions in (order_runs.h).
+  RunOrder order = RunOrder::kForward;
 };
 
 // One finished row of the table, and what the closing summary lines need.
@@ -394,6 +400,7 @@ struct Row {
   double recall = 0.0;
   double chi2_ratio = 0.0;  // chi2 over the clean edges / the lowest of the run's methods
   bool stopped = false;     // the method ran past --method-seconds
+  int order_diffs = -1;     // --order both, iRRR: loops accepted in one order only (-1: none)
 };
 
 std::string Fixed(double value, int digits) { return fmt::format("{:.{}f}", value, digits); }
@@ -759,18 +766,65 @@ Status RunCase(const Case& c,
     fmt::print(
         stderr, "{}: chi2 of the oracle over the clean edges {:.6g}\n", c.name, clean_chi2(oracle));
 
+  // --order: iRRR and RRR on every session driven backwards, their result brought back to
+  // `graph`'s edges and vertices (the robust kernels weigh every edge at once: no order).
+  ReversedGraph<Pose> reversed;
+  if (settings.order != RunOrder::kForward) reversed = TimeReversed(graph);
+  Case backwards = c;
+  backwards.name += " reversed";
+  auto run_reversed = [&](const Method& method, MethodRun<Pose>* run) {
+    Status s = RunInChild(backwards, method, reversed.graph, settings.method_seconds, run);
+    if (s.ok() && !run->stopped) FromReversed(graph, reversed, &run->accepted, &run->estimate);
+    return s;
+  };
   std::vector<MethodRun<Pose>> runs;
+  std::vector<int> order_diffs;  // per run, -1: not compared
   for (const Method& method : settings.methods) {
+    const bool reverse = settings.order == RunOrder::kReversed && !method.IsRobustKernel();
     fmt::print(stderr,
-               "running {} {} {} {} ...\n",
+               "running {} {} {} {}{} ...\n",
                c.name,
                MethodName(method),
                DofName(method),
-               VariantName(method));
+               VariantName(method),
+               reverse ? " reversed" : "");
     MethodRun<Pose> run;
-    if (Status s = RunInChild(c, method, graph, settings.method_seconds, &run); !s.ok()) {
+    if (Status s = reverse ? run_reversed(method, &run)
+                           : RunInChild(c, method, graph, settings.method_seconds, &run);
+        !s.ok()) {
       return Status::Error(MethodName(method) + ": " + s.message());
     }
+    int diffs = -1;
+    if (settings.order == RunOrder::kBoth && method.algorithm == Algorithm::kIrrr) {
+      fmt::print(stderr, "running {} {} reversed ...\n", c.name, MethodName(method));
+      MethodRun<Pose> other;
+      if (Status s = run_reversed(method, &other); !s.ok()) {
+        return Status::Error(MethodName(method) + " reversed: " + s.message());
+      }
+      std::string outcome = "stopped";
+      if (!run.stopped && !other.stopped) {
+        diffs = OrderDiffs(graph, run.accepted, other.accepted);
+        int accepted = 0;
+        int wrong = 0;
+        for (int e = 0; e < graph.num_edges(); ++e) {
+          if (graph.edge(e).kind != EdgeKind::kLoop || !other.accepted[e]) continue;
+          ++accepted;
+          wrong += is_true[e] ? 0 : 1;
+        }
+        outcome = fmt::format("{} loop(s) accepted in one order only; reversed: {} accepted ({})",
+                              diffs,
+                              accepted,
+                              labelled ? fmt::format("{} wrong", wrong) : "unlabelled");
+      }
+      fmt::print(stderr,
+                 "{}: {} reversed: {}; {:.2f} s ({:.2f} s CPU)\n",
+                 c.name,
+                 MethodName(method),
+                 outcome,
+                 other.seconds,
+                 other.cpu_seconds);
+    }
+    order_diffs.push_back(diffs);
     runs.push_back(std::move(run));
   }
   std::vector<double> chi2(runs.size(), 0.0);
@@ -853,6 +907,7 @@ Status RunCase(const Case& c,
     row.accepted_wrong = accepted_false;
     row.recall = true_loops > 0 ? static_cast<double>(accepted_true) / true_loops : 1.0;
     row.chi2_ratio = labelled ? chi2[m] / lowest_chi2 : 1.0;
+    row.order_diffs = order_diffs[m];
     // Odometry faults found: no method reports them yet.
     const std::string faults = c.odometry_faults > 0 ? "-" : "";
     row.markdown = fmt::format(
@@ -884,6 +939,9 @@ Status RunCase(const Case& c,
         run.peak_rss_kb / 1024.0,
         steps,
         latency);
+    if (settings.order == RunOrder::kBoth) {
+      row.markdown += order_diffs[m] >= 0 ? fmt::format(" {} |", order_diffs[m]) : " - |";
+    }
     emit(row);
   }
   return Status::Ok();
@@ -902,6 +960,8 @@ std::string SweepSummary(const std::vector<Row>& rows) {
     int stopped = 0;
     int none_wrong = 0;
     int near_lowest = 0;
+    int compared = 0;  // --order both
+    int same_order = 0;
     const Row* worst = nullptr;
     for (const Row& r : rows) {
       if (r.case_name != case_name || r.method + " (" + r.configuration + ")" != method) continue;
@@ -912,6 +972,8 @@ std::string SweepSummary(const std::vector<Row>& rows) {
       recalls.push_back(r.recall);
       none_wrong += r.accepted_wrong == 0 ? 1 : 0;
       near_lowest += r.chi2_ratio <= 1.01 ? 1 : 0;
+      compared += r.order_diffs >= 0 ? 1 : 0;
+      same_order += r.order_diffs == 0 ? 1 : 0;
       if (worst == nullptr || r.accepted_wrong > worst->accepted_wrong ||
           (r.accepted_wrong == worst->accepted_wrong && r.recall < worst->recall)) {
         worst = &r;
@@ -924,7 +986,7 @@ std::string SweepSummary(const std::vector<Row>& rows) {
     }
     out += fmt::format(
         "* {} {}: {} runs, {} with no wrong loop, worst seed {} ({} wrong, recall {:.3f}), "
-        "median recall {:.3f}, chi2 within 1% of the lowest in {}{}\n",
+        "median recall {:.3f}, chi2 within 1% of the lowest in {}{}{}\n",
         case_name,
         method,
         recalls.size(),
@@ -934,6 +996,8 @@ std::string SweepSummary(const std::vector<Row>& rows) {
         worst->recall,
         recalls[(recalls.size() - 1) / 2],
         near_lowest,
+        compared > 0 ? fmt::format(", {} of {} with 0 order diffs", same_order, compared)
+                     : std::string(),
         stopped > 0 ? fmt::format(", {} stopped", stopped) : std::string());
   }
   return out;
@@ -946,6 +1010,15 @@ const char* kTableHeader =
     "steps | step p50 ms | p90 ms | p99 ms | max ms |\n"
     "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
     "---|---|---|---|---|\n";
+
+// The table's header; --order both adds the order diffs column at its end.
+std::string TableHeader(RunOrder order) {
+  const std::string header = kTableHeader;
+  if (order != RunOrder::kBoth) return header;
+  const size_t end = header.find('\n');
+  return header.substr(0, end) + " order diffs |\n" +
+         header.substr(end + 1, header.size() - end - 2) + "---|\n";
+}
 
 std::string CpuModel() {
   std::ifstream in("/proc/cpuinfo");
@@ -1053,6 +1126,16 @@ int main(int argc, char** argv) {
   app.add_option("--group-size", outliers.group_size, "links per group of grouped outliers")
       ->check(CLI::PositiveNumber)
       ->capture_default_str();
+  const std::map<std::string, irrr::RunOrder> orders = {{"forward", irrr::RunOrder::kForward},
+                                                        {"reversed", irrr::RunOrder::kReversed},
+                                                        {"both", irrr::RunOrder::kBoth}};
+  std::string order = "forward";
+  app.add_option("--order",
+                 order,
+                 "reversed: iRRR and RRR decide on every session driven backwards, scored on the "
+                 "original; both: iRRR in both orders, with the loops accepted in one order only")
+      ->check(CLI::IsMember({"forward", "reversed", "both"}))
+      ->capture_default_str();
   app.add_option("--output", output, "also write a complete Markdown document here");
   app.add_flag("--list", list, "print the case names (after --filter) and exit");
   CLI11_PARSE(app, argc, argv);
@@ -1091,6 +1174,7 @@ int main(int argc, char** argv) {
   settings.shared = shared;
   settings.outliers = outliers;
   settings.method_seconds = method_seconds;
+  settings.order = orders.at(order);
   std::vector<irrr::GraphDegreesOfFreedom> dofs;
   if (graph_dof != "exact") dofs.push_back(irrr::GraphDegreesOfFreedom::kResidualRows);
   if (graph_dof != "residual_rows") dofs.push_back(irrr::GraphDegreesOfFreedom::kExact);
@@ -1141,6 +1225,13 @@ int main(int argc, char** argv) {
     std::string out;
     if (seeds.size() > 1) out += irrr::SweepSummary(rows);
     for (const irrr::Row& r : rows) {
+      if (seeds.size() == 1 && r.order_diffs >= 0) {
+        out += fmt::format("Order: {} {} ({}) accepted {} loop(s) in one order and not the other\n",
+                           r.case_name,
+                           r.method,
+                           r.configuration,
+                           r.order_diffs);
+      }
       if (r.case_name == "manhattan-random-1000" && r.method == "irrr") {
         out += fmt::format(
             "iRRR incremental over Manhattan + 1000 random outliers ({}): {:.2f} s ({:.2f} s "
@@ -1184,7 +1275,8 @@ int main(int argc, char** argv) {
           << irrr::kGpsStride << ", " << 2 * irrr::kGpsStride
           << ", ... (fix k of the GT_GPS file); Bicocca and Bovisa ship no loop labels, so their "
              "precision, recall and oracle are \"-\".\n\n";
-      out << irrr::kTableHeader;
+      out << irrr::RunOrderNote(settings.order);
+      out << irrr::TableHeader(settings.order);
       for (const irrr::Row& r : rows) out << r.markdown << "\n";
       const std::string summary = summary_lines();
       if (!summary.empty()) out << "\n" << summary;
@@ -1200,7 +1292,7 @@ int main(int argc, char** argv) {
              cases.size(),
              settings.methods.size(),
              machine);
-  fmt::print("{}", irrr::kTableHeader);
+  fmt::print("{}", irrr::TableHeader(settings.order));
   std::fflush(stdout);
   bool write_failed = false;
   auto emit = [&](const irrr::Row& row) {
