@@ -228,6 +228,11 @@ int Irrr<Pose>::num_steps() const {
 }
 
 template <class Pose>
+std::vector<int> Irrr<Pose>::OdometryFaults() const {
+  return state_->IsWarm() ? state_->warm.OdometryFaults() : std::vector<int>();
+}
+
+template <class Pose>
 std::vector<int> Irrr<Pose>::Components() const {
   return state_->IsWarm() ? state_->warm.Components() : state_->paper.Components();
 }
@@ -431,6 +436,18 @@ std::vector<Pose> GraphReplay<Pose>::Estimate() const {
   std::vector<Pose> estimate(graph_.num_vertices());
   for (int v = 0; v < graph_.num_vertices(); ++v) estimate[v] = irrr_->estimate()[vertex_of_[v]];
   return estimate;
+}
+
+template <class Pose>
+std::vector<int> GraphReplay<Pose>::OdometryFaults() const {
+  std::vector<int> graph_edge(irrr_->graph().num_edges(), -1);
+  for (int e = 0; e < graph_.num_edges(); ++e) {
+    if (edge_of_[e] >= 0) graph_edge[edge_of_[e]] = e;
+  }
+  std::vector<int> faults;
+  for (int e : irrr_->OdometryFaults()) faults.push_back(graph_edge[e]);
+  std::sort(faults.begin(), faults.end());
+  return faults;
 }
 
 template <class Pose>

@@ -83,6 +83,9 @@ class Irrr {
   // Decision of graph edge `edge` (odometry edges are never judged: kPending, cluster -1).
   const LoopDecision& decision(int edge) const;
   const LoopClusterer& clusters() const;
+  // Odometry edges the accepted loops show to be wrong beyond their covariance (graph edge
+  // indices, ascending; WarmEngine::OdometryFaults). The paper engine trusts odometry: none.
+  std::vector<int> OdometryFaults() const;
   // Component of every session under the current good set (numbered by earliest session).
   std::vector<int> Components() const;
   int num_steps() const;
@@ -143,6 +146,8 @@ class GraphReplay {
   // Decisions indexed like the graph's edges, estimate like its vertices (after the replay).
   std::vector<LoopDecision> Decisions() const;
   std::vector<Pose> Estimate() const;
+  // Irrr::OdometryFaults as the graph's edge indices (ascending).
+  std::vector<int> OdometryFaults() const;
 
  private:
   const PoseGraph<Pose>& graph_;

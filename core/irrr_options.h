@@ -46,6 +46,9 @@ struct IrrrOptions {
   // gaps (LoopClusterer's max_span), so that a place revisited without pause is judged in pieces
   // as it goes, not once at the end. 0: unbounded (the paper).
   double cluster_span = 4.0;
+  // Warm engine: conflicts between good clusters and refused ones are settled by a robust solve
+  // of their component, confirmed by the joint tests (core/warm_arbiter.cc).
+  bool arbiter = true;
   GraphDegreesOfFreedom graph_dof = GraphDegreesOfFreedom::kResidualRows;  // paper engine
   OptimizerOptions optimizer;  // Algorithm 1's optimizations, and all of the paper engine's
 
@@ -66,6 +69,7 @@ struct StepResult {
   double variance_factor = 1.0;    // the variance factor the step's tests used
   double variance_estimate = 1.0;  // the one the data gave (warm engine; tests: within [1e-6, 1])
   int reversals = 0;               // good clusters reversed by later evidence
+  int arbitrations = 0;            // robust solves asked which side of a conflict the map supports
 
   // Whether the tests used another factor than the data's estimate: the estimate was bounded to
   // [1e-6, 1], or irrr.variance_factor fixed the factor.

@@ -277,6 +277,10 @@ template <class Pose>
 void WarmEngine<Pose>::Impl::Step(int k, StepResult* result) {
   const int solves_before = Solves();
   const int iterations_before = Iterations();
+  int conflict_before = 0;
+  if (options->arbiter) {
+    for (const auto& [unused, n] : ConflictLinks()) conflict_before += n;
+  }
   EstimateVarianceFactor();
   std::vector<int> batch;
   if (k >= 0) batch.push_back(k);
@@ -307,6 +311,7 @@ void WarmEngine<Pose>::Impl::Step(int k, StepResult* result) {
       for (int q : Waiting()) Judge(q, result);
     }
     ReverseOutvoted(result);
+    if (options->arbiter) ArbitrateGrown(conflict_before, result);
   }
   std::vector<int>& changed = result->changed_loops;
   std::sort(changed.begin(), changed.end());
@@ -754,6 +759,29 @@ bool WarmEngine<Pose>::HasReleased() const {
 template <class Pose>
 void WarmEngine<Pose>::Step(int cluster, StepResult* result) {
   impl_->Step(cluster, result);
+}
+
+template <class Pose>
+std::vector<int> WarmEngine<Pose>::Impl::OdometryFaults() const {
+  std::vector<std::vector<int>> candidates;
+  for (int e = 0; e < graph->num_edges(); ++e) {
+    if (graph->edge(e).kind == EdgeKind::kOdometry && good.EdgeChi2(e) >= LinkThreshold()) {
+      candidates.push_back({e});
+    }
+  }
+  std::vector<int> faults;
+  if (candidates.empty()) return faults;
+  const std::vector<double> removal = good.LinearizeRemovals(candidates);
+  for (size_t k = 0; k < candidates.size(); ++k) {
+    // NaN: the edge alone holds its poses together (no loop spans it), nothing can check it.
+    if (removal[k] >= kScreenMargin * LinkThreshold()) faults.push_back(candidates[k].front());
+  }
+  return faults;
+}
+
+template <class Pose>
+std::vector<int> WarmEngine<Pose>::OdometryFaults() const {
+  return impl_->OdometryFaults();
 }
 
 template <class Pose>

@@ -51,6 +51,13 @@ class WarmEngine {
   // Judges closed cluster `cluster` (-1: only what waits) against the good set.
   void Step(int cluster, StepResult* result);
 
+  // The odometry edges the accepted loops show to be wrong beyond their covariance (graph edge
+  // indices, ascending): at the good set's optimum each fails the link test, and the chi2 the
+  // optimum would lose without it (Baarda's w-test, LinearizeRemoval) is kScreenMargin times the
+  // link threshold or more. An error between two poses the loops hold shows in every odometry
+  // edge between them: a fault is flagged as the stretch of edges it lies in.
+  std::vector<int> OdometryFaults() const;
+
   // Every session's component under the good set, numbered by earliest session.
   std::vector<int> Components() const;
 

@@ -514,6 +514,31 @@ struct WarmEngine<Pose>::Impl {
   // cluster's threshold (0 when its ends lie in two components).
   double Strain(int q) const;
 
+  std::vector<int> OdometryFaults() const;
+
+  // ---- the arbiter (core/warm_arbiter.cc) ----------------------------------------------------
+
+  // The arbiter is asked only once at least this many links are in conflict.
+  static constexpr int kMinConflictLinks = 4;
+  // A cluster is supported by the arbiter's robust solve when its links' mean scale is at least
+  // this (DCS accepts a link at a scale above 0.5).
+  static constexpr double kArbiterSupport = 0.5;
+
+  // Whether cluster q, of two links or more, consistent on its own (it passed Algorithm 1), was
+  // refused by the joint test against the good set of `component` (which holds both its ends):
+  // evidence against that good set.
+  bool InConflict(int q, int component) const;
+  // The links of the clusters in conflict, per component.
+  std::map<int, int> ConflictLinks() const;
+  // When the links in conflict (over all components) have reached the next power of two since
+  // `before` (their count at the step's start), every component holding any is arbitrated.
+  void ArbitrateGrown(int before, StepResult* result);
+  // A robust solve (DCS, core/robust_solve.h) of the component's odometry, good clusters and
+  // clusters in conflict, from each session's dead reckoning: the clusters it supports (mean scale
+  // kArbiterSupport or more) and are refused challenge the good ones it does not support
+  // (Replace: the joint tests confirm, and the larger consistent set wins).
+  void Arbitrate(int component, StepResult* result);
+
   // ---- state ---------------------------------------------------------------------------------
 
   const PoseGraph<Pose>* graph;

@@ -94,6 +94,7 @@ TEST_CASE("Every key of the irrr section is read into its field", "[config]") {
       {"variance_factor", 0.5},
       {"cluster_gap", 12.5},
       {"cluster_span", 2.5},
+      {"arbiter", false},
       {"graph_dof", "exact"},
       {"optimizer",
        {{"algorithm", "levenberg_marquardt"},
@@ -114,6 +115,7 @@ TEST_CASE("Every key of the irrr section is read into its field", "[config]") {
   CHECK(options.variance_factor == 0.5);
   CHECK(options.cluster_gap == 12.5);
   CHECK(options.cluster_span == 2.5);
+  CHECK(!options.arbiter);
   CHECK(options.graph_dof == GraphDegreesOfFreedom::kExact);
   CHECK(options.optimizer.algorithm == OptimizerAlgorithm::kLevenbergMarquardt);
   CHECK(options.optimizer.max_iterations == 7);
@@ -136,7 +138,7 @@ TEST_CASE("Every key of the irrr section is read into its field", "[config]") {
 
 TEST_CASE("An unknown key is an error naming its full path", "[config]") {
   CHECK_THAT(ParseError(json{{"alpha", 0.9}, {"optimiser", json::object()}}),
-             StartsWith("irrr.optimiser: unknown key (known: alpha, cluster_gap,"));
+             StartsWith("irrr.optimiser: unknown key (known: alpha, arbiter, cluster_gap,"));
   CHECK(ParseError(json{{"optimizer", {{"max_iters", 3}}}}) ==
         "irrr.optimizer.max_iters: unknown key (known: algorithm, function_tolerance, "
         "initial_damping, max_iterations, parameter_tolerance)");

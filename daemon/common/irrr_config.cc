@@ -32,6 +32,7 @@ void VisitFields(IrrrOptions& options, Visitor& visit) {
   visit("variance_factor", options.variance_factor);
   visit("cluster_gap", options.cluster_gap);
   visit("cluster_span", options.cluster_span);
+  visit("arbiter", options.arbiter);
   visit("graph_dof", options.graph_dof);
   visit("optimizer", options.optimizer);
 }
