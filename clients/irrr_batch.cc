@@ -141,6 +141,34 @@ std::string VarianceEstimateNote(const StepResult& step) {
   return fmt::format(" (the data's estimate {:.4g})", step.variance_estimate);
 }
 
+int Arbitrations(const std::vector<StepResult>& steps) {
+  int n = 0;
+  for (const StepResult& step : steps) n += step.arbitrations;
+  return n;
+}
+
+// The odometry edges the accepted loops refute (Irrr::OdometryFaults), as stretches of adjacent
+// edges, each from its first pose's id to its last's.
+template <class Pose>
+void PrintOdometryFaults(const PoseGraph<Pose>& graph, const std::vector<int>& faults) {
+  if (faults.empty()) return;
+  std::vector<std::string> stretches;
+  for (size_t k = 0; k < faults.size();) {
+    size_t end = k + 1;
+    while (end < faults.size() && graph.edge(faults[end]).from == graph.edge(faults[end - 1]).to) {
+      ++end;
+    }
+    stretches.push_back(fmt::format("{}-{}",
+                                    graph.vertex(graph.edge(faults[k]).from).id,
+                                    graph.vertex(graph.edge(faults[end - 1]).to).id));
+    k = end;
+  }
+  fmt::print("faults    {} odometry edge(s) the accepted loops refute, in {} stretch(es): {}\n",
+             faults.size(),
+             stretches.size(),
+             fmt::join(stretches, ", "));
+}
+
 template <class Pose>
 int Run(const BatchArguments& args, const IrrrOptions& options, FileFormat format) {
   const auto load_start = std::chrono::steady_clock::now();
@@ -193,8 +221,9 @@ int Run(const BatchArguments& args, const IrrrOptions& options, FileFormat forma
 
   std::vector<LoopDecision> decisions(graph.num_edges());
   std::vector<Pose> estimate = graph.initial_estimate();
-  std::vector<StepResult> steps;  // --method irrr
-  std::vector<double> step_ms;    // the time of each
+  std::vector<StepResult> steps;     // --method irrr
+  std::vector<int> odometry_faults;  // --method irrr
+  std::vector<double> step_ms;       // the time of each
   double decide_s = 0.0;
   std::string robust_note;  // --method dcs or gnc
   int exit_code = EX_OK;
@@ -295,6 +324,7 @@ int Run(const BatchArguments& args, const IrrrOptions& options, FileFormat forma
       line.Clear();
       decisions = replay.Decisions();
       estimate = replay.Estimate();
+      odometry_faults = replay.OdometryFaults();
     }
     decide_s = SecondsSince(decide_start);
   }
@@ -339,8 +369,9 @@ int Run(const BatchArguments& args, const IrrrOptions& options, FileFormat forma
         count[LoopState::kPending],
         num_clusters,
         args.method == "irrr" && !steps.empty()
-            ? fmt::format("{} steps, variance factor {:.4g}{}, ",
+            ? fmt::format("{} steps, {} arbitrations, variance factor {:.4g}{}, ",
                           steps.size(),
+                          Arbitrations(steps),
                           steps.back().variance_factor,
                           VarianceEstimateNote(steps.back()))
         : args.method == "irrr" ? std::string("0 steps, ")
@@ -349,6 +380,8 @@ int Run(const BatchArguments& args, const IrrrOptions& options, FileFormat forma
         chi2,
         decide_s);
   }
+
+  if (args.method == "irrr") PrintOdometryFaults(graph, odometry_faults);
 
   const std::vector<DecisionRow> rows =
       DecisionRowsInFileOrder(file, graph, graph_edge_of_file_edge, decisions);

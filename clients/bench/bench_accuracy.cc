@@ -287,14 +287,16 @@ struct RunResult {
   int steps = -1;            // -1: batch
   int solves = 0;
   std::vector<double> step_ms;
+  std::vector<int> odometry_faults;
 };
 
 // What one method's run leaves for the table: it runs in a child process (RunInChild), so that
 // its peak memory is its own.
 template <class Pose>
 struct MethodRun {
-  std::vector<char> accepted;  // per graph edge
-  std::vector<Pose> estimate;  // per vertex
+  std::vector<char> accepted;        // per graph edge
+  std::vector<int> odometry_faults;  // iRRR: the odometry edges it flags (Irrr::OdometryFaults)
+  std::vector<Pose> estimate;        // per vertex
   double seconds = 0.0;
   double cpu_seconds = 0.0;
   int steps = -1;  // -1: not incremental
@@ -353,6 +355,7 @@ RunResult RunIncrementalTimed(const std::string& label,
   result.seconds = SecondsSince(start);
   result.steps = irrr.num_steps();
   result.decisions = replay.Decisions();
+  result.odometry_faults = replay.OdometryFaults();
   *estimate = replay.Estimate();
   return result;
 }
@@ -402,6 +405,36 @@ struct Row {
   bool stopped = false;     // the method ran past --method-seconds
   int order_diffs = -1;     // --order both, iRRR: loops accepted in one order only (-1: none)
 };
+
+// iRRR's odometry faults against the injected ones: "found/injected", and "+N wrong" for the
+// stretches of flagged edges (adjacent edges, Irrr::OdometryFaults) that hold no injected fault;
+// "" when there is nothing to say, "-" for a method that flags none.
+template <class Pose>
+std::string FaultsFound(const Method& method,
+                        const PoseGraph<Pose>& graph,
+                        const std::vector<char>& is_fault,
+                        const std::vector<int>& flagged) {
+  const int injected = static_cast<int>(std::count(is_fault.begin(), is_fault.end(), 1));
+  if (method.algorithm != Algorithm::kIrrr) return injected > 0 ? "-" : "";
+  int found = 0;
+  int wrong = 0;
+  for (size_t k = 0; k < flagged.size();) {
+    bool holds_fault = false;
+    size_t end = k;
+    for (; end < flagged.size(); ++end) {
+      if (end > k && graph.edge(flagged[end]).from != graph.edge(flagged[end - 1]).to) break;
+      if (is_fault[flagged[end]]) {
+        holds_fault = true;
+        ++found;
+      }
+    }
+    wrong += holds_fault ? 0 : 1;
+    k = end;
+  }
+  if (injected == 0 && wrong == 0) return "";
+  const std::string text = fmt::format("{}/{}", found, injected);
+  return wrong > 0 ? fmt::format("{} +{} wrong", text, wrong) : text;
+}
 
 std::string Fixed(double value, int digits) { return fmt::format("{:.{}f}", value, digits); }
 
@@ -478,6 +511,7 @@ Status RunMethod(const Case& c,
       run->steps = result.steps;
       run->solves = result.solves;
       run->step_ms = std::move(result.step_ms);
+      run->odometry_faults = std::move(result.odometry_faults);
     } else {
       decisions = RunBatchRrr(graph, OptionsFor(method), &run->estimate);
       run->seconds = SecondsSince(start);
@@ -500,9 +534,11 @@ std::vector<double> Serialize(const MethodRun<Pose>& run) {
                              static_cast<double>(run.solves),
                              static_cast<double>(run.step_ms.size()),
                              static_cast<double>(run.accepted.size()),
-                             static_cast<double>(run.estimate.size())};
+                             static_cast<double>(run.estimate.size()),
+                             static_cast<double>(run.odometry_faults.size())};
   out.insert(out.end(), run.step_ms.begin(), run.step_ms.end());
   for (char a : run.accepted) out.push_back(a);
+  out.insert(out.end(), run.odometry_faults.begin(), run.odometry_faults.end());
   for (const Pose& pose : run.estimate) {
     if constexpr (Pose::kDim == 3) {
       out.insert(out.end(), {pose.translation().x(), pose.translation().y(), pose.yaw_rad()});
@@ -523,13 +559,16 @@ std::vector<double> Serialize(const MethodRun<Pose>& run) {
 
 template <class Pose>
 bool Deserialize(const std::vector<double>& in, MethodRun<Pose>* run) {
-  constexpr size_t kHeader = 7;
+  constexpr size_t kHeader = 8;
   constexpr size_t kPoseNumbers = Pose::kDim == 3 ? 3 : 7;
   if (in.size() < kHeader) return false;
   const auto num_steps = static_cast<size_t>(in[4]);
   const auto num_edges = static_cast<size_t>(in[5]);
   const auto num_poses = static_cast<size_t>(in[6]);
-  if (in.size() != kHeader + num_steps + num_edges + kPoseNumbers * num_poses) return false;
+  const auto num_faults = static_cast<size_t>(in[7]);
+  if (in.size() != kHeader + num_steps + num_edges + num_faults + kPoseNumbers * num_poses) {
+    return false;
+  }
   run->seconds = in[0];
   run->cpu_seconds = in[1];
   run->steps = static_cast<int>(in[2]);
@@ -539,6 +578,8 @@ bool Deserialize(const std::vector<double>& in, MethodRun<Pose>* run) {
   next += num_steps;
   run->accepted.assign(num_edges, 0);
   for (size_t e = 0; e < num_edges; ++e) run->accepted[e] = *next++ != 0.0 ? 1 : 0;
+  run->odometry_faults.assign(next, next + num_faults);
+  next += num_faults;
   run->estimate.resize(num_poses);
   for (size_t v = 0; v < num_poses; ++v, next += kPoseNumbers) {
     if constexpr (Pose::kDim == 3) {
@@ -774,7 +815,13 @@ Status RunCase(const Case& c,
   backwards.name += " reversed";
   auto run_reversed = [&](const Method& method, MethodRun<Pose>* run) {
     Status s = RunInChild(backwards, method, reversed.graph, settings.method_seconds, run);
-    if (s.ok() && !run->stopped) FromReversed(graph, reversed, &run->accepted, &run->estimate);
+    if (s.ok() && !run->stopped) {
+      FromReversed(graph, reversed, &run->accepted, &run->estimate);
+      std::vector<int> original(reversed.graph.num_edges(), -1);
+      for (int e = 0; e < graph.num_edges(); ++e) original[reversed.edge_of[e]] = e;
+      for (int& e : run->odometry_faults) e = original[e];
+      std::sort(run->odometry_faults.begin(), run->odometry_faults.end());
+    }
     return s;
   };
   std::vector<MethodRun<Pose>> runs;
@@ -908,8 +955,7 @@ Status RunCase(const Case& c,
     row.recall = true_loops > 0 ? static_cast<double>(accepted_true) / true_loops : 1.0;
     row.chi2_ratio = labelled ? chi2[m] / lowest_chi2 : 1.0;
     row.order_diffs = order_diffs[m];
-    // Odometry faults found: no method reports them yet.
-    const std::string faults = c.odometry_faults > 0 ? "-" : "";
+    const std::string faults = FaultsFound(method, graph, is_fault, run.odometry_faults);
     row.markdown = fmt::format(
         "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} "
         "| {} | {} | {:.2f} | {:.2f} | {:.0f} | {} | {} |",
