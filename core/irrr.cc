@@ -247,6 +247,7 @@ IrrrStepState<Pose> Irrr<Pose>::StepState() const {
   out.cluster_of = st.cluster_of;
   out.steps = st.book.step;
   out.judged = static_cast<int>(st.next_closed);
+  if (st.IsWarm()) out.weakened_odometry = st.warm.WeakenedOdometry();
   return out;
 }
 
@@ -307,13 +308,27 @@ Status Irrr<Pose>::RestoreStepState(IrrrStepState<Pose> state) {
     }
     if (cluster.checked_links < 0) return Status::Error("a cluster's checked link count is < 0");
   }
+  for (int e : state.weakened_odometry) {
+    if (!fits(e, st.graph.num_edges()) || st.graph.edge(e).kind != EdgeKind::kOdometry) {
+      return Status::Error("the step state weakens an edge that is not odometry of the graph");
+    }
+  }
+  std::sort(state.weakened_odometry.begin(), state.weakened_odometry.end());
+  if (std::adjacent_find(state.weakened_odometry.begin(), state.weakened_odometry.end()) !=
+          state.weakened_odometry.end() ||
+      (!st.IsWarm() && !state.weakened_odometry.empty())) {
+    return Status::Error("the step state weakens an odometry edge twice, or for the paper engine");
+  }
   st.book.decisions = std::move(state.decisions);
   st.book.clusters = std::move(state.clusters);
   st.book.step = state.steps;
   st.estimate = std::move(state.estimate);
   st.cluster_of = std::move(state.cluster_of);
   st.next_closed = static_cast<size_t>(state.judged);
-  if (st.IsWarm()) st.warm.Restore();
+  if (st.IsWarm()) {
+    st.warm.RestoreWeakened(state.weakened_odometry);
+    st.warm.Restore();
+  }
   return Status::Ok();
 }
 

@@ -44,6 +44,7 @@ struct IrrrStepState {
   std::vector<int> cluster_of;          // per clusterer cluster: its index in `clusters`
   int steps = 0;                        // steps run
   int judged = 0;                       // closed clusters judged so far, in closing order
+  std::vector<int> weakened_odometry;   // odometry edges found faulty (WarmEngine)
 };
 
 template <class Pose>
@@ -83,8 +84,8 @@ class Irrr {
   // Decision of graph edge `edge` (odometry edges are never judged: kPending, cluster -1).
   const LoopDecision& decision(int edge) const;
   const LoopClusterer& clusters() const;
-  // Odometry edges the accepted loops show to be wrong beyond their covariance (graph edge
-  // indices, ascending; WarmEngine::OdometryFaults). The paper engine trusts odometry: none.
+  // Odometry edges found faulty (graph edge indices, ascending; WarmEngine::OdometryFaults). The
+  // paper engine trusts odometry: none.
   std::vector<int> OdometryFaults() const;
   // Component of every session under the current good set (numbered by earliest session).
   std::vector<int> Components() const;

@@ -30,6 +30,13 @@ void OdometryCovariance<Pose>::Update() {
 }
 
 template <class Pose>
+void OdometryCovariance<Pose>::Recompute() {
+  prefix_.clear();
+  position_.clear();
+  Update();
+}
+
+template <class Pose>
 typename OdometryCovariance<Pose>::Matrix OdometryCovariance<Pose>::Relative(int session,
                                                                              int p,
                                                                              int q) const {

@@ -23,6 +23,8 @@ class OdometryCovariance {
 
   // Extends the prefix sums to every vertex of the graph.
   void Update();
+  // Computes them again from the first vertex (after an odometry edge's information changed).
+  void Recompute();
 
   // The covariance of the dead reckoning from the p-th to the q-th pose of a session, as a
   // perturbation on its right (D(p -> q) * Exp(xi)).

@@ -38,6 +38,12 @@ class PairwiseConsistency {
 
   // Extends the odometry prefix sums to every vertex of the graph.
   void Update() { odometry_.Update(); }
+  // Everything again from the graph (after an odometry edge's information changed).
+  void Recompute() {
+    odometry_.Recompute();
+    last_links_.clear();
+    last_statistics_.clear();
+  }
 
   // The covariances of the dead reckoning it uses.
   const OdometryCovariance<Pose>& odometry() const { return odometry_; }

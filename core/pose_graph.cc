@@ -157,6 +157,18 @@ Status PoseGraph<Pose>::AddLoop(int from_vertex,
 }
 
 template <class Pose>
+Status PoseGraph<Pose>::SetInformation(int edge, const Matrix& information) {
+  if (edge < 0 || edge >= num_edges()) {
+    return Status::Error("edge " + std::to_string(edge) + ": unknown edge index");
+  }
+  if (Status s = ValidateInformation<Pose>(information); !s.ok()) {
+    return Status::Error("edge " + std::to_string(edge) + ": " + s.message());
+  }
+  edges_[edge].information = information;
+  return Status::Ok();
+}
+
+template <class Pose>
 int PoseGraph<Pose>::FindVertex(int64_t vertex_id) const {
   const auto it = vertex_index_.find(vertex_id);
   return it == vertex_index_.end() ? -1 : it->second;

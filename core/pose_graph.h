@@ -5,8 +5,9 @@
 //
 // A session is one uninterrupted run of one robot: poses in time order, each joined to the
 // previous one by an odometry edge (trusted). A loop hypothesis joins any two poses, in one
-// session or in two, and is what iRRR decides about. The graph only grows; every mutator
-// validates its input and leaves the graph unchanged when it returns an error.
+// session or in two, and is what iRRR decides about. The graph only grows (an edge's
+// information may change); every mutator validates its input and leaves the graph unchanged when
+// it returns an error.
 
 #include <cstdint>
 #include <string>
@@ -71,6 +72,11 @@ class PoseGraph {
                  const Pose& measurement,
                  const Matrix& information,
                  int* edge_index);
+
+  // Replaces edge `edge`'s information (an odometry edge found wrong keeps its measurement with
+  // far less weight). Fails on an unknown edge or an information matrix that is not symmetric
+  // positive definite.
+  Status SetInformation(int edge, const Matrix& information);
 
   int num_vertices() const { return static_cast<int>(vertices_.size()); }
   int num_edges() const { return static_cast<int>(edges_.size()); }

@@ -47,13 +47,14 @@ class RobustSolver {
     int solves = 0;
     bool converged = false;
     for (; outer < options_.dcs_iterations; ++outer) {
-      const std::vector<double> chi2 = LoopChi2(graph_, estimate);
       double cost = 0.0;
       for (int e = 0; e < graph_.num_edges(); ++e) {
-        if (graph_.edge(e).kind != EdgeKind::kLoop) continue;
-        const double s = DcsScale(options_.dcs_phi, chi2[e]);
+        const double phi = Phi(e);
+        if (phi == 0.0) continue;
+        const double chi2 = EdgeChi2(graph_.edge(e), estimate);
+        const double s = DcsScale(phi, chi2);
         information_scale[e] = s * s;
-        cost += s * s * chi2[e];
+        cost += s * s * chi2;
       }
       if (previous_cost >= 0.0 &&
           std::abs(previous_cost - cost) <= options_.function_tolerance * cost) {
@@ -68,9 +69,10 @@ class RobustSolver {
     }
     Finish(estimate, result);
     for (int e = 0; e < graph_.num_edges(); ++e) {
-      if (graph_.edge(e).kind != EdgeKind::kLoop) continue;
-      result->weight[e] = DcsScale(options_.dcs_phi, result->edge_chi2[e]);
-      result->threshold[e] = 3.0 * options_.dcs_phi;
+      const double phi = Phi(e);
+      if (phi == 0.0) continue;
+      result->weight[e] = DcsScale(phi, result->edge_chi2[e]);
+      result->threshold[e] = 3.0 * phi;
     }
     result->outer_iterations = outer;
     result->solver_iterations = solves;
@@ -78,6 +80,11 @@ class RobustSolver {
     result->message =
         converged ? "the robust cost stopped falling" : "the reweighting limit was reached";
     return Status::Ok();
+  }
+
+  // DCS's Phi of edge e; 0 for a known inlier.
+  double Phi(int e) const {
+    return graph_.edge(e).kind == EdgeKind::kLoop ? options_.dcs_phi : options_.dcs_odometry_phi;
   }
 
   // Yang et al. 2020, Algorithm 1 with known inliers (the odometry), as GTSAM's GncOptimizer
@@ -181,6 +188,9 @@ const char* RobustKernelName(RobustKernel kernel) {
 
 Status RobustOptions::Validate() const {
   if (!(dcs_phi > 0.0)) return Status::Error("dcs_phi must be > 0");
+  if (!(dcs_odometry_phi >= 0.0 && std::isfinite(dcs_odometry_phi))) {
+    return Status::Error("dcs_odometry_phi must be >= 0 and finite");
+  }
   if (dcs_iterations < 1) return Status::Error("dcs_iterations must be at least 1");
   if (!(function_tolerance >= 0.0)) return Status::Error("function_tolerance must be >= 0");
   if (!(inlier_probability > 0.0 && inlier_probability < 1.0)) {

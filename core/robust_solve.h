@@ -39,6 +39,9 @@ struct RobustOptions {
   RobustKernel kernel = RobustKernel::kDcs;
   // DCS: Phi, the d^2 scale of the kernel (the paper's default 1).
   double dcs_phi = 1.0;
+  // DCS: > 0, odometry is weighed too, with this Phi (its scale at the end in `weight`); 0:
+  // odometry is a known inlier.
+  double dcs_odometry_phi = 0.0;
   // DCS: reweighted Gauss-Newton steps (g2o's usual 30); fewer when the robust cost stops falling
   // by more than function_tolerance of itself.
   int dcs_iterations = 30;

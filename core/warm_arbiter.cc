@@ -96,6 +96,9 @@ void WarmEngine<Pose>::Impl::Arbitrate(int component, StepResult* result) {
   }
   RobustOptions robust;
   robust.kernel = RobustKernel::kDcs;
+  // Odometry is weighed too: its scale falls below 0.5 at d^2 = 3 Phi, kScreenMargin times the
+  // link threshold (where the screen refuses a loop).
+  robust.dcs_odometry_phi = kScreenMargin * LinkThreshold() / 3.0;
   RobustResult<Pose> solved;
   if (!RobustSolve(sub, robust, sub.initial_estimate(), &solved).ok()) return;
   // Each cluster's support: the mean of its links' scales.
@@ -115,14 +118,65 @@ void WarmEngine<Pose>::Impl::Arbitrate(int component, StepResult* result) {
   std::vector<int> suspect_clusters;
   for (const auto& [unused, g] : suspects) suspect_clusters.push_back(g);
   SortLargestFirst(&challengers);
-  Replace(suspect_clusters, challengers, {component}, result);
+  // The odometry the solve found faulty is weakened for the replacement, and stays so only if
+  // the good set it builds is larger.
+  const std::vector<int> faulty = FaultyOdometry(sub, sub_of, solved, component);
+  Weaken(faulty);
+  if (!Replace(suspect_clusters, challengers, {component}, result)) Unweaken(faulty);
 }
 
-#define IRRR_INSTANTIATE_ARBITER(Pose)                                       \
-  template bool WarmEngine<Pose>::Impl::InConflict(int, int) const;          \
-  template std::map<int, int> WarmEngine<Pose>::Impl::ConflictLinks() const; \
-  template void WarmEngine<Pose>::Impl::ArbitrateGrown(int, StepResult*);    \
-  template void WarmEngine<Pose>::Impl::Arbitrate(int, StepResult*);
+template <class Pose>
+std::vector<int> WarmEngine<Pose>::Impl::FaultyOdometry(const PoseGraph<Pose>& sub,
+                                                        const std::vector<int>& sub_of,
+                                                        const RobustResult<Pose>& solved,
+                                                        int component) const {
+  std::vector<int> faulty;
+  int odometry = 0;
+  for (int s : good.SessionsOf(component)) {
+    for (int v : graph->session(s).vertices) {
+      const int e = graph->OdometryInto(v);
+      if (e < 0) continue;
+      ++odometry;
+      if (weakened.count(e) == 0 && solved.weight[sub.OdometryInto(sub_of[v])] < kArbiterSupport) {
+        faulty.push_back(e);
+      }
+    }
+  }
+  if (static_cast<double>(faulty.size()) > kMaxFaultShare * odometry) faulty.clear();
+  return faulty;
+}
+
+template <class Pose>
+void WarmEngine<Pose>::Impl::Weaken(const std::vector<int>& edges) {
+  if (edges.empty()) return;
+  for (int e : edges) {
+    if (weakened.count(e) != 0) continue;
+    const typename Pose::Matrix information = graph->edge(e).information;
+    weakened.emplace(e, information);
+    IRRR_CHECK(graph->SetInformation(e, kFaultWeight * information).ok());
+  }
+  pairwise.Recompute();
+}
+
+template <class Pose>
+void WarmEngine<Pose>::Impl::Unweaken(const std::vector<int>& edges) {
+  if (edges.empty()) return;
+  for (int e : edges) {
+    IRRR_CHECK(graph->SetInformation(e, weakened.at(e)).ok());
+    weakened.erase(e);
+  }
+  pairwise.Recompute();
+}
+
+#define IRRR_INSTANTIATE_ARBITER(Pose)                                                        \
+  template bool WarmEngine<Pose>::Impl::InConflict(int, int) const;                           \
+  template std::map<int, int> WarmEngine<Pose>::Impl::ConflictLinks() const;                  \
+  template void WarmEngine<Pose>::Impl::ArbitrateGrown(int, StepResult*);                     \
+  template void WarmEngine<Pose>::Impl::Arbitrate(int, StepResult*);                          \
+  template std::vector<int> WarmEngine<Pose>::Impl::FaultyOdometry(                           \
+      const PoseGraph<Pose>&, const std::vector<int>&, const RobustResult<Pose>&, int) const; \
+  template void WarmEngine<Pose>::Impl::Weaken(const std::vector<int>&);                      \
+  template void WarmEngine<Pose>::Impl::Unweaken(const std::vector<int>&);
 IRRR_INSTANTIATE_ARBITER(Pose2)
 IRRR_INSTANTIATE_ARBITER(Pose3)
 #undef IRRR_INSTANTIATE_ARBITER

@@ -725,7 +725,7 @@ int WarmEngine<Pose>::Impl::SplitOff(int q, const std::vector<int>& links) {
 }
 
 template <class Pose>
-WarmEngine<Pose>::WarmEngine(const PoseGraph<Pose>* graph,
+WarmEngine<Pose>::WarmEngine(PoseGraph<Pose>* graph,
                              const IrrrOptions* options,
                              DecisionBook* book,
                              std::vector<Pose>* estimate,
@@ -762,26 +762,57 @@ void WarmEngine<Pose>::Step(int cluster, StepResult* result) {
 }
 
 template <class Pose>
-std::vector<int> WarmEngine<Pose>::Impl::OdometryFaults() const {
-  std::vector<std::vector<int>> candidates;
+std::vector<int> WarmEngine<Pose>::Impl::RefutedOdometry() const {
+  std::vector<int> odometry;
   for (int e = 0; e < graph->num_edges(); ++e) {
-    if (graph->edge(e).kind == EdgeKind::kOdometry && good.EdgeChi2(e) >= LinkThreshold()) {
-      candidates.push_back({e});
-    }
+    if (graph->edge(e).kind == EdgeKind::kOdometry && weakened.count(e) == 0) odometry.push_back(e);
   }
-  std::vector<int> faults;
-  if (candidates.empty()) return faults;
+  if (odometry.empty()) return {};
+  // The odometry's own variance factor: the median removal statistic per degree of freedom over
+  // a sample spread along the trajectory (edges no loop spans have none and are left out).
+  std::vector<std::vector<int>> sample;
+  const size_t stride = std::max<size_t>(1, odometry.size() / kOdometrySample);
+  for (size_t k = 0; k < odometry.size(); k += stride) sample.push_back({odometry[k]});
+  std::vector<double> per_dof;
+  for (double removal : good.LinearizeRemovals(sample)) {
+    if (removal > 0.0 && std::isfinite(removal)) per_dof.push_back(removal / d);
+  }
+  if (per_dof.size() < kOdometrySample / 4) return {};
+  std::nth_element(per_dof.begin(), per_dof.begin() + per_dof.size() / 2, per_dof.end());
+  // The median of chi2(d)/d is about 1 - 2/(9d) (Wilson-Hilferty).
+  const double odometry_factor = per_dof[per_dof.size() / 2] / (1.0 - 2.0 / (9.0 * d));
+  const double threshold = kScreenMargin * ThresholdsAt(std::max(variance, odometry_factor)).Of(d);
+  std::vector<std::vector<int>> candidates;
+  for (int e : odometry) {
+    if (good.EdgeChi2(e) >= threshold / kScreenMargin) candidates.push_back({e});
+  }
+  std::vector<int> refuted;
+  if (candidates.empty()) return refuted;
   const std::vector<double> removal = good.LinearizeRemovals(candidates);
   for (size_t k = 0; k < candidates.size(); ++k) {
-    // NaN: the edge alone holds its poses together (no loop spans it), nothing can check it.
-    if (removal[k] >= kScreenMargin * LinkThreshold()) faults.push_back(candidates[k].front());
+    if (removal[k] >= threshold) refuted.push_back(candidates[k].front());
   }
-  return faults;
+  return refuted;
 }
 
 template <class Pose>
 std::vector<int> WarmEngine<Pose>::OdometryFaults() const {
-  return impl_->OdometryFaults();
+  std::vector<int> faults = impl_->RefutedOdometry();
+  for (const auto& [e, unused] : impl_->weakened) faults.push_back(e);
+  std::sort(faults.begin(), faults.end());
+  return faults;
+}
+
+template <class Pose>
+std::vector<int> WarmEngine<Pose>::WeakenedOdometry() const {
+  std::vector<int> edges;
+  for (const auto& [e, unused] : impl_->weakened) edges.push_back(e);
+  return edges;
+}
+
+template <class Pose>
+void WarmEngine<Pose>::RestoreWeakened(const std::vector<int>& edges) {
+  impl_->Weaken(edges);
 }
 
 template <class Pose>

@@ -34,7 +34,9 @@ class WarmEngine {
  public:
   // Everything given must outlive the engine. `estimate` receives the good set's optimum (one pose
   // per vertex), `dead_reckoning` holds each session's odometry chained from the identity.
-  WarmEngine(const PoseGraph<Pose>* graph,
+  // The engine changes the information of the odometry edges it finds faulty in `graph`
+  // (WeakenedOdometry).
+  WarmEngine(PoseGraph<Pose>* graph,
              const IrrrOptions* options,
              DecisionBook* book,
              std::vector<Pose>* estimate,
@@ -51,12 +53,16 @@ class WarmEngine {
   // Judges closed cluster `cluster` (-1: only what waits) against the good set.
   void Step(int cluster, StepResult* result);
 
-  // The odometry edges the accepted loops show to be wrong beyond their covariance (graph edge
-  // indices, ascending): at the good set's optimum each fails the link test, and the chi2 the
-  // optimum would lose without it (Baarda's w-test, LinearizeRemoval) is kScreenMargin times the
-  // link threshold or more. An error between two poses the loops hold shows in every odometry
-  // edge between them: a fault is flagged as the stretch of edges it lies in.
+  // The odometry edges found faulty (ascending): those the arbiter weakened (WeakenedOdometry), and
+  // those the accepted loops refute beyond the odometry's own noise (Baarda's w-test at the good
+  // set's optimum). An error between two poses the loops hold shows in every odometry edge between
+  // them: a fault is flagged as the stretch of edges it lies in.
   std::vector<int> OdometryFaults() const;
+  // The odometry edges the arbiter found faulty (ascending): their information is scaled by
+  // kFaultWeight in the graph, as if the session were split there and joined again by its loops.
+  std::vector<int> WeakenedOdometry() const;
+  // Before Restore: the odometry edges a snapshot's engine had weakened are weakened again.
+  void RestoreWeakened(const std::vector<int>& edges);
 
   // Every session's component under the good set, numbered by earliest session.
   std::vector<int> Components() const;

@@ -19,6 +19,7 @@
 #include "core/intra_cluster.h"
 #include "core/local_problem.h"
 #include "core/pairwise_consistency.h"
+#include "core/robust_solve.h"
 #include "core/test_statistics.h"
 #include "core/warm_engine.h"
 
@@ -74,7 +75,7 @@ struct WarmEngine<Pose>::Impl {
   // Manhattan + 100 random three in four pinned parts are not weighed.
   static constexpr double kPinGrowth = 1.2;
 
-  Impl(const PoseGraph<Pose>* g,
+  Impl(PoseGraph<Pose>* g,
        const IrrrOptions* o,
        DecisionBook* b,
        std::vector<Pose>* e,
@@ -514,7 +515,12 @@ struct WarmEngine<Pose>::Impl {
   // cluster's threshold (0 when its ends lie in two components).
   double Strain(int q) const;
 
-  std::vector<int> OdometryFaults() const;
+  // The odometry edges (not weakened) the accepted loops refute: at the good set's optimum, the
+  // chi2 the optimum would lose without the edge (Baarda's w-test, LinearizeRemoval) is
+  // kScreenMargin times the link threshold at the larger of the loops' factor and the odometry's
+  // own (estimated over kOdometrySample edges).
+  std::vector<int> RefutedOdometry() const;
+  static constexpr size_t kOdometrySample = 64;
 
   // ---- the arbiter (core/warm_arbiter.cc) ----------------------------------------------------
 
@@ -538,10 +544,26 @@ struct WarmEngine<Pose>::Impl {
   // kArbiterSupport or more) and are refused challenge the good ones it does not support
   // (Replace: the joint tests confirm, and the larger consistent set wins).
   void Arbitrate(int component, StepResult* result);
+  // The odometry edges of `component` the arbiter's solve scaled below kArbiterSupport (its
+  // odometry weighed by DCS too), as graph edges; none when they are more than kMaxFaultShare of
+  // the component's odometry.
+  std::vector<int> FaultyOdometry(const PoseGraph<Pose>& sub,
+                                  const std::vector<int>& sub_of,
+                                  const RobustResult<Pose>& solved,
+                                  int component) const;
+  // Scales the edges' information by kFaultWeight (keeping the originals), or gives it back.
+  void Weaken(const std::vector<int>& edges);
+  void Unweaken(const std::vector<int>& edges);
+
+  // An odometry edge found faulty keeps this much of its information.
+  static constexpr double kFaultWeight = 1e-6;
+  // Faults are rare: when more odometry than this share of a component's disagrees with the loops,
+  // the odometry is noisier than its information claims, not faulty, and none is weakened.
+  static constexpr double kMaxFaultShare = 0.01;
 
   // ---- state ---------------------------------------------------------------------------------
 
-  const PoseGraph<Pose>* graph;
+  PoseGraph<Pose>* graph;
   const IrrrOptions* options;
   DecisionBook* book;
   std::vector<Pose>* estimate;
@@ -562,6 +584,8 @@ struct WarmEngine<Pose>::Impl {
   // Per loop edge: its linearized statistic and redundancy number at its last screen (redundancy
   // -1: not screened since the engine was restored).
   std::vector<LinearizedAddition> screened;
+  // The odometry edges weakened (Weaken), each with its information as given.
+  std::map<int, typename Pose::Matrix> weakened;
   // The bending runs of ReverseOutvoted's last round, by their links.
   std::map<std::vector<int>, RunJudgement> run_judgements;
 };

@@ -12,7 +12,7 @@
 namespace irrr {
 namespace {
 
-constexpr char kMagic[8] = {'I', 'R', 'R', 'R', 'S', 'N', 'P', '4'};
+constexpr char kMagic[8] = {'I', 'R', 'R', 'R', 'S', 'N', 'P', '5'};
 constexpr size_t kHeader = sizeof kMagic + 8;  // magic, length, CRC
 constexpr uint32_t kMaxBody = 1u << 31;
 
@@ -115,6 +115,7 @@ void SnapshotWriter::StepState(const IrrrStepState<Pose>& state) {
   Ints(state.cluster_of);
   I64(state.steps);
   I64(state.judged);
+  Ints(state.weakened_odometry);
 }
 
 // ---- Reader ----
@@ -232,7 +233,8 @@ bool SnapshotReader::StepState(IrrrStepState<Pose>* state) {
     c.in_good = (flags & 2) != 0;
     c.in_reject = (flags & 4) != 0;
   }
-  return Ints(&state->cluster_of) && Int(&state->steps) && Int(&state->judged);
+  return Ints(&state->cluster_of) && Int(&state->steps) && Int(&state->judged) &&
+         Ints(&state->weakened_odometry);
 }
 
 // ---- Files ----

@@ -329,6 +329,12 @@ TEST_CASE("A step state that does not fit the Irrr is refused and changes nothin
   bad = good;
   bad.estimate[0] = Pose2(std::nan(""), 0.0, 0.0);
   CHECK(refused(bad));
+  bad = good;
+  bad.weakened_odometry = {good.clusters[0].links.front()};  // a loop, not odometry
+  CHECK(refused(bad));
+  bad = good;
+  bad.weakened_odometry = {0, 0};
+  CHECK(refused(bad));
   // Nothing changed: the good state still restores, and the Irrr goes on.
   REQUIRE(irrr.RestoreStepState(good).ok());
   CHECK(irrr.num_steps() == good.steps);

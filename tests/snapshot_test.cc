@@ -71,6 +71,7 @@ TEST_CASE("A snapshot body reads back as written, and any cut of it is refused",
   state.cluster_of = {0, 1};
   state.steps = 7;
   state.judged = 2;
+  state.weakened_odometry = {0};
   SnapshotWriter w;
   w.String("options");
   w.StepState(state);
@@ -99,6 +100,7 @@ TEST_CASE("A snapshot body reads back as written, and any cut of it is refused",
   CHECK(back.clusters[0].refused_variance == 0.0);
   CHECK(back.clusters[1].refused_variance == 0.27);
   CHECK((back.steps == 7 && back.judged == 2 && back.cluster_of == state.cluster_of));
+  CHECK(back.weakened_odometry == std::vector<int>{0});
 
   for (size_t cut = 0; cut < body.size(); ++cut) {
     const std::vector<uint8_t> part(body.begin(), body.begin() + static_cast<long>(cut));
