@@ -1,7 +1,6 @@
 // Conflicts settled on all their evidence (core/warm_arbiter.cc), and odometry faults the
 // accepted loops refute (WarmEngine::OdometryFaults).
 
-#include <string>
 #include <vector>
 
 #include <catch2/catch.hpp>
@@ -64,39 +63,6 @@ PoseGraph<Pose> WithFault(const PoseGraph<Pose>& graph,
     REQUIRE(out.AddLoop(loop.from, loop.to, loop.measurement, loop.information, nullptr).ok());
   }
   return out;
-}
-
-TEMPLATE_TEST_CASE("explore conflicts", "[explore]", Pose2, Pose3) {
-  using Pose = TestType;
-  for (int config = 0; config < 4; ++config) {
-    for (uint32_t seed = 1; seed <= 6; ++seed) {
-      OutlierOptions outliers;
-      outliers.mode = OutlierMode::kAliasedGrouped;
-      outliers.count = 60;
-      outliers.group_size = config % 2 == 0 ? 5 : 3;
-      outliers.aliased_translation_m = config < 2 ? 1.0 : 3.0;
-      outliers.seed = seed;
-      auto synthetic = NoisyWorld<Pose>(seed);
-      synthetic.num_poses = Pose::kDim == 3 ? 400 : 300;
-      synthetic.information_scale = 0.05;
-      synthetic.loop_probability = 0.3;
-      const auto corrupted = MakeCorrupted<Pose>(synthetic, outliers);
-      for (bool arbiter : {true, false}) {
-        IrrrOptions options;
-        options.arbiter = arbiter;
-        const auto forward = RunIncrementalIrrr<Pose>(corrupted.graph, options, nullptr, nullptr);
-        const auto f = CountAccepted(corrupted, forward);
-        std::printf("%d config %d seed %u arbiter %d: fwd %d/%d wrong %d\n",
-                    Pose::kDim,
-                    config,
-                    seed,
-                    arbiter,
-                    f.accepted_true,
-                    f.true_loops,
-                    f.accepted_wrong);
-      }
-    }
-  }
 }
 
 // Runs iRRR over `graph` in arrival order; returns its decisions, and its odometry faults in
