@@ -153,15 +153,10 @@ template <class Pose>
 void PrintOdometryFaults(const PoseGraph<Pose>& graph, const std::vector<int>& faults) {
   if (faults.empty()) return;
   std::vector<std::string> stretches;
-  for (size_t k = 0; k < faults.size();) {
-    size_t end = k + 1;
-    while (end < faults.size() && graph.edge(faults[end]).from == graph.edge(faults[end - 1]).to) {
-      ++end;
-    }
+  for (const std::vector<int>& stretch : OdometryStretches(graph, faults)) {
     stretches.push_back(fmt::format("{}-{}",
-                                    graph.vertex(graph.edge(faults[k]).from).id,
-                                    graph.vertex(graph.edge(faults[end - 1]).to).id));
-    k = end;
+                                    graph.vertex(graph.edge(stretch.front()).from).id,
+                                    graph.vertex(graph.edge(stretch.back()).to).id));
   }
   fmt::print("faults    {} odometry edge(s) the accepted loops refute, in {} stretch(es): {}\n",
              faults.size(),

@@ -170,6 +170,20 @@ std::vector<LoopDecision> RunIncrementalIrrr(const PoseGraph<Pose>& graph,
                                              std::vector<Pose>* estimate,
                                              std::vector<StepResult>* steps);
 
+// Odometry edges (ascending, as OdometryFaults gives them) grouped into stretches of adjacent
+// edges: an error between two poses the loops hold shows in every edge between them.
+template <class Pose>
+std::vector<std::vector<int>> OdometryStretches(const PoseGraph<Pose>& graph,
+                                                const std::vector<int>& edges) {
+  std::vector<std::vector<int>> stretches;
+  for (size_t k = 0; k < edges.size(); ++k) {
+    if (k == 0 || graph.edge(edges[k]).from != graph.edge(edges[k - 1]).to)
+      stretches.emplace_back();
+    stretches.back().push_back(edges[k]);
+  }
+  return stretches;
+}
+
 extern template class Irrr<Pose2>;
 extern template class Irrr<Pose3>;
 

@@ -418,18 +418,11 @@ std::string FaultsFound(const Method& method,
   if (method.algorithm != Algorithm::kIrrr) return injected > 0 ? "-" : "";
   int found = 0;
   int wrong = 0;
-  for (size_t k = 0; k < flagged.size();) {
-    bool holds_fault = false;
-    size_t end = k;
-    for (; end < flagged.size(); ++end) {
-      if (end > k && graph.edge(flagged[end]).from != graph.edge(flagged[end - 1]).to) break;
-      if (is_fault[flagged[end]]) {
-        holds_fault = true;
-        ++found;
-      }
-    }
-    wrong += holds_fault ? 0 : 1;
-    k = end;
+  for (const std::vector<int>& stretch : OdometryStretches(graph, flagged)) {
+    const int held = static_cast<int>(
+        std::count_if(stretch.begin(), stretch.end(), [&](int e) { return is_fault[e] != 0; }));
+    found += held;
+    wrong += held == 0 ? 1 : 0;
   }
   if (injected == 0 && wrong == 0) return "";
   const std::string text = fmt::format("{}/{}", found, injected);
