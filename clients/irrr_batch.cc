@@ -147,6 +147,19 @@ int Arbitrations(const std::vector<StepResult>& steps) {
   return n;
 }
 
+// The largest step's solves and, with a step budget, how many steps stopped at it.
+std::string StepWorkNote(const std::vector<StepResult>& steps, int step_budget) {
+  int largest = 0;
+  int capped = 0;
+  for (const StepResult& step : steps) {
+    largest = std::max(largest, step.solves);
+    capped += step.capped ? 1 : 0;
+  }
+  if (step_budget == 0) return fmt::format("largest {} solves", largest);
+  return fmt::format(
+      "largest {} solves, {} stopped at the step budget of {}", largest, capped, step_budget);
+}
+
 // The odometry edges the accepted loops refute (Irrr::OdometryFaults), as stretches of adjacent
 // edges, each from its first pose's id to its last's.
 template <class Pose>
@@ -364,8 +377,9 @@ int Run(const BatchArguments& args, const IrrrOptions& options, FileFormat forma
         count[LoopState::kPending],
         num_clusters,
         args.method == "irrr" && !steps.empty()
-            ? fmt::format("{} steps, {} arbitrations, variance factor {:.4g}{}, ",
+            ? fmt::format("{} steps ({}), {} arbitrations, variance factor {:.4g}{}, ",
                           steps.size(),
+                          StepWorkNote(steps, options.step_budget),
                           Arbitrations(steps),
                           steps.back().variance_factor,
                           VarianceEstimateNote(steps.back()))
@@ -440,6 +454,7 @@ int main(int argc, char** argv) {
   std::string graph_dof;
   std::string solver;
   int max_iterations = 0;
+  int step_budget = 0;
   // Help shows IrrrOptions' own defaults, under their configuration names.
   const nlohmann::json defaults = irrr::IrrrOptionsToJson(irrr::IrrrOptions());
   CLI::App app{"irrr-batch: robust loop closing (iRRR) and optimization of a pose-graph file"};
@@ -512,6 +527,12 @@ int main(int argc, char** argv) {
                  fmt::format("optimizer iteration limit [{}]",
                              defaults["optimizer"]["max_iterations"].dump()))
       ->check(CLI::PositiveNumber);
+  app.add_option("--step-budget",
+                 step_budget,
+                 fmt::format("solves one step may use before leaving the rest of its work to later "
+                             "steps; 0: unbounded [{}]",
+                             defaults["step_budget"].dump()))
+      ->check(CLI::NonNegativeNumber);
   app.add_flag("--skip-unknown-tags",
                args.skip_unknown_tags,
                "ignore lines with tags other than vertices and edges (e.g. EQUIV)");
@@ -558,6 +579,7 @@ int main(int argc, char** argv) {
                                                  : irrr::OptimizerAlgorithm::kGaussNewton;
   }
   if (app.count("--max-iterations") > 0) options.optimizer.max_iterations = max_iterations;
+  if (app.count("--step-budget") > 0) options.step_budget = step_budget;
   // The file's values were valid: what fails now came from the command line.
   if (irrr::Status s = options.Validate(); !s.ok()) {
     fmt::print(stderr, "irrr-batch: command line: {}\n", s.message());

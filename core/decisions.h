@@ -46,6 +46,10 @@ struct JudgedCluster {
   bool in_reject = false;  // in the reject set
   bool closed = false;     // its clusterer cluster has closed (it is judged, or waits)
   bool held = false;       // warm engine: waits until the good set can check it
+  // Warm engine, work a step budget left for later steps: a held cluster is due to be judged
+  // again (the good set has grown), or a good cluster is due to be challenged by the refused
+  // clusters among its opponents.
+  bool deferred = false;
   // Warm engine: the good clusters it fell against while they were inconsistent too (Algorithm
   // 2's reversal), its Algorithm 1 redundancy (chi2 and degrees of freedom at its local optimum,
   // for the variance factor), the clusters' variance factor when it was accepted, and the factor

@@ -38,6 +38,7 @@ Status IrrrOptions::Validate() const {
   if (!(variance_factor >= 0.0) || !std::isfinite(variance_factor)) {
     return Status::Error("variance_factor must be a finite number >= 0 (0: estimated)");
   }
+  if (step_budget < 0) return Status::Error("step_budget must be >= 0 (0: unbounded)");
   if (Status s = optimizer.Validate(); !s.ok()) return Status::Error("optimizer: " + s.message());
   return Status::Ok();
 }
@@ -180,7 +181,7 @@ void Irrr<Pose>::Flush() {
 template <class Pose>
 bool Irrr<Pose>::HasPendingStep() const {
   return state_->next_closed < state_->closed.size() ||
-         (state_->IsWarm() && state_->warm.HasReleased());
+         (state_->IsWarm() && (state_->warm.HasReleased() || state_->warm.HasDeferred()));
 }
 
 template <class Pose>

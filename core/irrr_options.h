@@ -49,6 +49,12 @@ struct IrrrOptions {
   // Warm engine: conflicts between good clusters and refused ones are settled by a robust solve
   // of their component, confirmed by the joint tests (core/warm_arbiter.cc).
   bool arbiter = true;
+  // Warm engine: the decision work one step may do, in nonlinear solves (local problems, trials
+  // and rebuilds of the good set). Once a step has used it, the clusters not judged yet, the held
+  // clusters due to be judged again and the challenges due wait for later steps (Irrr's
+  // HasPendingStep stays true until they are done); a step always does at least one of them.
+  // 0: unbounded (each step settles all it finds).
+  int step_budget = 0;
   GraphDegreesOfFreedom graph_dof = GraphDegreesOfFreedom::kResidualRows;  // paper engine
   OptimizerOptions optimizer;  // Algorithm 1's optimizations, and all of the paper engine's
 
@@ -70,6 +76,11 @@ struct StepResult {
   double variance_estimate = 1.0;  // the one the data gave (warm engine; tests: within [1e-6, 1])
   int reversals = 0;               // good clusters reversed by later evidence
   int arbitrations = 0;            // robust solves asked which side of a conflict the map supports
+  // Warm engine, with a step budget: whether this step stopped at it, and the decision work it
+  // left for later steps (clusters not judged yet, held clusters due to be judged again,
+  // good clusters whose challenge is due).
+  bool capped = false;
+  int deferred = 0;
 
   // Whether the tests used another factor than the data's estimate: the estimate was bounded to
   // [1e-6, 1], or irrr.variance_factor fixed the factor.

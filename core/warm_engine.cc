@@ -4,6 +4,7 @@
 #include <cmath>
 #include <functional>
 #include <limits>
+#include <map>
 
 #include "core/warm_engine_impl.h"
 
@@ -26,7 +27,7 @@ constexpr double kMinRedundancy = 0.1;
 // factor varies along a trajectory more than a larger count would admit.
 constexpr double kMaxVarianceDof = 50.0;
 // A variance factor is known once one cluster has this much redundancy, or all together three
-// times as much (before, wrong links clustered by chance could set it).
+// times as much (with less, wrong links clustered by chance could set it).
 constexpr double kScaleMinimumDof = 30.0;
 // A cluster with this much redundancy of its own is judged at the larger of the global factor and
 // its own.
@@ -277,6 +278,8 @@ template <class Pose>
 void WarmEngine<Pose>::Impl::Step(int k, StepResult* result) {
   const int solves_before = Solves();
   const int iterations_before = Iterations();
+  step_solves = solves_before;
+  const bool budgeted = options->step_budget > 0;
   int conflict_before = 0;
   if (options->arbiter) {
     for (const auto& [unused, n] : ConflictLinks()) conflict_before += n;
@@ -284,6 +287,8 @@ void WarmEngine<Pose>::Impl::Step(int k, StepResult* result) {
   EstimateVarianceFactor();
   std::vector<int> batch;
   if (k >= 0) batch.push_back(k);
+  // With a budget, cluster k waits behind what earlier steps left unjudged (it is among them).
+  if (budgeted && scale_known) batch = Unjudged();
   if (!scale_known) {
     if (k >= 0 && book->clusters[k].links.size() >= 2) Calibrate(k);
     EstimateVarianceFactor();
@@ -305,13 +310,29 @@ void WarmEngine<Pose>::Impl::Step(int k, StepResult* result) {
     RejudgeRefused(result);
     Revalidate(result);
     const int good_before = GoodLinks();
-    for (int q : batch) Judge(q, result);
-    // Clusters that wait for support are judged again once the good set has grown.
-    if (k >= 0 && GoodLinks() != good_before) {
-      for (int q : Waiting()) Judge(q, result);
+    int done = 0;  // units of work: the first is done whatever the budget says
+    for (int q : batch) {
+      if (done > 0 && OverBudget()) break;
+      Judge(q, result);
+      ++done;
     }
-    ReverseOutvoted(result);
+    // Clusters that wait for support are judged again once the good set has grown.
+    if ((k >= 0 || budgeted) && GoodLinks() != good_before) {
+      for (int q : Waiting()) {
+        if (!budgeted) {
+          Judge(q, result);
+        } else if (book->clusters[q].held) {
+          book->clusters[q].deferred = true;
+        }
+      }
+    }
+    if (budgeted) JudgeDeferred(&done, result);
+    if (!OverBudget()) ReverseOutvoted(result);
     if (options->arbiter) ArbitrateGrown(conflict_before, result);
+  }
+  if (budgeted) {
+    result->deferred = static_cast<int>(Deferred().size());
+    result->capped = OverBudget();
   }
   std::vector<int>& changed = result->changed_loops;
   std::sort(changed.begin(), changed.end());
@@ -332,6 +353,64 @@ void WarmEngine<Pose>::Impl::Step(int k, StepResult* result) {
   result->iterations += Iterations() - iterations_before;
   result->variance_factor = variance;
   result->variance_estimate = variance_estimate;
+}
+
+template <class Pose>
+std::vector<int> WarmEngine<Pose>::Impl::Unjudged() const {
+  std::vector<int> unjudged;
+  for (int q : Waiting()) {
+    if (!book->clusters[q].held) unjudged.push_back(q);
+  }
+  return unjudged;
+}
+
+template <class Pose>
+std::vector<int> WarmEngine<Pose>::Impl::Deferred() const {
+  std::vector<int> deferred;
+  if (!CurrentScale().known) return deferred;  // what waits for a factor is not deferred
+  const std::vector<int> unjudged = Unjudged();
+  for (int q = 0; q < static_cast<int>(book->clusters.size()); ++q) {
+    if (book->clusters[q].deferred || std::binary_search(unjudged.begin(), unjudged.end(), q)) {
+      deferred.push_back(q);
+    }
+  }
+  return deferred;
+}
+
+template <class Pose>
+void WarmEngine<Pose>::Impl::JudgeDeferred(int* done, StepResult* result) {
+  for (int q : Waiting()) {
+    JudgedCluster& c = book->clusters[q];
+    if (!c.deferred || !c.held) continue;
+    if (*done > 0 && OverBudget()) return;
+    c.deferred = false;
+    Judge(q, result);
+    ++*done;
+  }
+  // The challenges due, one per component, most inconsistent suspect first (as JointTestWhole
+  // names them). A suspect that has left the good set meanwhile is no longer one.
+  std::map<int, std::vector<std::pair<double, int>>> due;  // component -> (index, suspect)
+  for (int g = 0; g < static_cast<int>(book->clusters.size()); ++g) {
+    JudgedCluster& c = book->clusters[g];
+    if (!c.deferred || c.held) continue;
+    if (!c.in_good) {
+      c.deferred = false;
+      continue;
+    }
+    double chi2;
+    due[good.ComponentOf(c.session_a)].push_back({ConsistencyIndex(g, &chi2), g});
+  }
+  for (auto& [component, ranked] : due) {
+    if (*done > 0 && OverBudget()) return;
+    std::sort(ranked.rbegin(), ranked.rend());
+    std::vector<int> suspects;
+    for (const auto& [unused, g] : ranked) {
+      book->clusters[g].deferred = false;
+      suspects.push_back(g);
+    }
+    Challenge(suspects, {component}, result, /*deferrable=*/false);
+    ++*done;
+  }
 }
 
 template <class Pose>
@@ -754,6 +833,11 @@ bool WarmEngine<Pose>::HasReleased() const {
     if (!m.book->clusters[q].held) return true;
   }
   return false;
+}
+
+template <class Pose>
+bool WarmEngine<Pose>::HasDeferred() const {
+  return impl_->options->step_budget > 0 && !impl_->Deferred().empty();
 }
 
 template <class Pose>

@@ -50,6 +50,8 @@ class WarmEngine {
   void Release();
   // Whether released clusters wait for a step of their own.
   bool HasReleased() const;
+  // Whether a step budget (IrrrOptions::step_budget) left decision work for a step of its own.
+  bool HasDeferred() const;
   // Judges closed cluster `cluster` (-1: only what waits) against the good set.
   void Step(int cluster, StepResult* result);
 

@@ -210,6 +210,20 @@ struct WarmEngine<Pose>::Impl {
 
   void Step(int k, StepResult* result);
 
+  // The step budget (IrrrOptions::step_budget): whether this step has used it.
+  bool OverBudget() const {
+    return options->step_budget > 0 && Solves() - step_solves >= options->step_budget;
+  }
+  // The work a budget left (JudgedCluster::deferred): clusters not judged yet, once a variance
+  // factor is known, and the deferred held and good clusters; in closing order.
+  std::vector<int> Deferred() const;
+  // The closed clusters judged by no test yet and not held (Waiting without the held ones).
+  std::vector<int> Unjudged() const;
+  // Does deferred work, each unit only while the budget lasts, but always at least one per step
+  // unless `done` already counts one: held clusters due are judged again, then the challenges
+  // due run, one per component.
+  void JudgeDeferred(int* done, StepResult* result);
+
   int Solves() const {
     return problems.solves() + static_cast<int>(good.counters().trials + good.counters().rebuilds);
   }
@@ -464,9 +478,12 @@ struct WarmEngine<Pose>::Impl {
   // are inconsistent too (the suspects, most inconsistent first), the clusters that fell against
   // them so far (their opponents) challenge them (Replace): first the most inconsistent suspect
   // alone (a small wrong cluster bends the map, so true ones near it look inconsistent too).
+  // Past the step budget (and `deferrable`), the suspects are marked deferred instead: a later
+  // step challenges them (JudgeDeferred).
   void Challenge(const std::vector<int>& suspects,
                  const std::vector<int>& components,
-                 StepResult* result);
+                 StepResult* result,
+                 bool deferrable = true);
 
   // The good clusters a challenger is weighed against: in `components`, not among `suspects`,
   // smaller than `challenger` and of at most kMaxWeighedLinks links.
@@ -580,7 +597,8 @@ struct WarmEngine<Pose>::Impl {
   double variance_dof = std::numeric_limits<double>::infinity();
   bool scale_known = false;
   bool released = false;
-  int rejudging = 0;  // Rejudge under way (no challenge starts inside one)
+  int rejudging = 0;    // Rejudge under way (no challenge starts inside one)
+  int step_solves = 0;  // Solves() when the step began (OverBudget)
   // Per loop edge: its linearized statistic and redundancy number at its last screen (redundancy
   // -1: not screened since the engine was restored).
   std::vector<LinearizedAddition> screened;

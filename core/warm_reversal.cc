@@ -364,8 +364,13 @@ void WarmEngine<Pose>::Impl::Rejudge(std::vector<int> clusters, StepResult* resu
 template <class Pose>
 void WarmEngine<Pose>::Impl::Challenge(const std::vector<int>& suspects,
                                        const std::vector<int>& components,
-                                       StepResult* result) {
+                                       StepResult* result,
+                                       bool deferrable) {
   if (rejudging > 0) return;  // one challenge at a time: what it re-judges does not challenge
+  if (deferrable && OverBudget()) {
+    for (int g : suspects) book->clusters[g].deferred = true;
+    return;
+  }
   std::vector<int> challengers;
   size_t challenger_links = 0;
   size_t smallest_suspect = std::numeric_limits<size_t>::max();
@@ -631,7 +636,7 @@ void WarmEngine<Pose>::Impl::Recover(int since,
   template void WarmEngine<Pose>::Impl::ChallengeAsWhole(                                        \
       const std::vector<int>&, const std::vector<int>&, StepResult*);                            \
   template void WarmEngine<Pose>::Impl::Challenge(                                               \
-      const std::vector<int>&, const std::vector<int>&, StepResult*);                            \
+      const std::vector<int>&, const std::vector<int>&, StepResult*, bool);                      \
   template bool WarmEngine<Pose>::Impl::Replace(const std::vector<int>&,                         \
                                                 const std::vector<int>&,                         \
                                                 const std::vector<int>&,                         \

@@ -194,6 +194,7 @@ void Service::State::PublishStep(Engine<Pose>& engine,
   c.cluster = step.cluster;
   c.closed_utime = closed_utime;
   c.solves = step.solves;
+  c.deferred = step.deferred;
   c.decide_ms = static_cast<float>(decide_ms);
   c.chi2 = step.chi2;
   std::vector<verdicts_t> verdicts;
@@ -209,7 +210,7 @@ void Service::State::PublishStep(Engine<Pose>& engine,
       replaying ? spdlog::level::debug : spdlog::level::info,
       "step {} (cluster {}): {} decision(s) changed, {} accepted and {} rejected or reversed in "
       "all; {} "
-      "session(s) re-estimated; decided in {:.1f} ms ({} solves, variance factor {:.4g}{}), "
+      "session(s) re-estimated; decided in {:.1f} ms ({} solves{}, variance factor {:.4g}{}), "
       "published {:.1f} ms after the cluster closed",
       step.step,
       step.cluster,
@@ -219,6 +220,8 @@ void Service::State::PublishStep(Engine<Pose>& engine,
       c.n_sessions,
       decide_ms,
       step.solves,
+      step.deferred > 0 ? fmt::format(", {} deferred to later steps", step.deferred)
+                        : std::string(),
       step.variance_factor,
       step.VarianceEstimateDiffers()
           ? fmt::format(", the data's estimate {:.4g}", step.variance_estimate)

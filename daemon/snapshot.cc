@@ -12,7 +12,7 @@
 namespace irrr {
 namespace {
 
-constexpr char kMagic[8] = {'I', 'R', 'R', 'R', 'S', 'N', 'P', '5'};
+constexpr char kMagic[8] = {'I', 'R', 'R', 'R', 'S', 'N', 'P', '6'};
 constexpr size_t kHeader = sizeof kMagic + 8;  // magic, length, CRC
 constexpr uint32_t kMaxBody = 1u << 31;
 
@@ -103,7 +103,8 @@ void SnapshotWriter::StepState(const IrrrStepState<Pose>& state) {
     Ints(c.links);
     I64(c.session_a);
     I64(c.session_b);
-    I64((c.in_r ? 1 : 0) | (c.in_good ? 2 : 0) | (c.in_reject ? 4 : 0) | (c.closed ? 8 : 0));
+    I64((c.in_r ? 1 : 0) | (c.in_good ? 2 : 0) | (c.in_reject ? 4 : 0) | (c.closed ? 8 : 0) |
+        (c.held ? 16 : 0) | (c.deferred ? 32 : 0));
     Ints(c.opponents);
     F64(c.redundancy_chi2);
     F64(c.redundancy_dof);
@@ -232,6 +233,8 @@ bool SnapshotReader::StepState(IrrrStepState<Pose>* state) {
     c.in_r = (flags & 1) != 0;
     c.in_good = (flags & 2) != 0;
     c.in_reject = (flags & 4) != 0;
+    c.held = (flags & 16) != 0;
+    c.deferred = (flags & 32) != 0;
   }
   return Ints(&state->cluster_of) && Int(&state->steps) && Int(&state->judged) &&
          Ints(&state->weakened_odometry);
@@ -289,7 +292,8 @@ Status ReadSnapshotFile(const std::string& path, std::vector<uint8_t>* body, boo
   }
   close(fd);
   if (data.size() < kHeader || std::memcmp(data.data(), kMagic, sizeof kMagic) != 0) {
-    return Status::Error(path + ": not an irrrd snapshot (it does not start with IRRRSNP4)");
+    return Status::Error(path + ": not an irrrd snapshot of this version (it does not start with " +
+                         std::string(kMagic, sizeof kMagic) + ")");
   }
   const uint32_t length = GetU32(&data[sizeof kMagic]);
   const uint32_t crc = GetU32(&data[sizeof kMagic + 4]);

@@ -8,7 +8,7 @@
 //
 // File (next to the journal, "<journal>.snapshot"; replaced atomically: written to ".tmp",
 // synced, renamed):
-//   8 bytes "IRRRSNP5" | uint32 body length | uint32 CRC-32 (zlib) of the body | body
+//   8 bytes "IRRRSNP6" | uint32 body length | uint32 CRC-32 (zlib) of the body | body
 // The body is a little-endian sequence written by SnapshotWriter and read back, bounds-checked,
 // by SnapshotReader; what it holds is the service's business (service.cc).
 

@@ -95,6 +95,7 @@ TEST_CASE("Every key of the irrr section is read into its field", "[config]") {
       {"cluster_gap", 12.5},
       {"cluster_span", 2.5},
       {"arbiter", false},
+      {"step_budget", 40},
       {"graph_dof", "exact"},
       {"optimizer",
        {{"algorithm", "levenberg_marquardt"},
@@ -116,6 +117,7 @@ TEST_CASE("Every key of the irrr section is read into its field", "[config]") {
   CHECK(options.cluster_gap == 12.5);
   CHECK(options.cluster_span == 2.5);
   CHECK(!options.arbiter);
+  CHECK(options.step_budget == 40);
   CHECK(options.graph_dof == GraphDegreesOfFreedom::kExact);
   CHECK(options.optimizer.algorithm == OptimizerAlgorithm::kLevenbergMarquardt);
   CHECK(options.optimizer.max_iterations == 7);

@@ -227,6 +227,7 @@ struct Method {
   bool paper_faithful = false;
   double alpha = 0.0;             // > 0: overrides the preset's
   double variance_factor = -1.0;  // >= 0: overrides the default (0: estimated)
+  int step_budget = -1;           // >= 0: overrides the default (0: unbounded)
 
   bool IsRobustKernel() const {
     return algorithm == Algorithm::kDcs || algorithm == Algorithm::kGnc;
@@ -260,6 +261,7 @@ IrrrOptions OptionsFor(const Method& m) {
   options.graph_dof = m.dof;
   if (m.alpha > 0.0) options.alpha = m.alpha;
   if (m.variance_factor >= 0.0) options.variance_factor = m.variance_factor;
+  if (m.step_budget >= 0) options.step_budget = m.step_budget;
   return options;
 }
 
@@ -1148,6 +1150,12 @@ int main(int argc, char** argv) {
   app.add_option("--variance-factor",
                  variance_factor,
                  "fixed variance factor of the information (0: estimated; default: the variant's)");
+  int step_budget = -1;
+  app.add_option("--step-budget",
+                 step_budget,
+                 "iRRR: solves one step may use before leaving the rest to later steps (0: "
+                 "unbounded; default: the variant's)")
+      ->check(CLI::NonNegativeNumber);
   app.add_option("--seed", outliers.seed, "seed of the synthetic outliers")->capture_default_str();
   std::string seed_range;
   auto* seeds_option = app.add_option(
@@ -1236,6 +1244,7 @@ int main(int argc, char** argv) {
     method.algorithm = found->second;
     method.alpha = alpha;
     method.variance_factor = variance_factor;
+    method.step_budget = step_budget;
     if (method.IsRobustKernel()) {
       settings.methods.push_back(method);  // neither graph dof nor variant applies
       continue;

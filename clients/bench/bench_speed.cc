@@ -106,8 +106,12 @@ struct Variant {
   IrrrOptions options;
 };
 
-std::vector<Variant> Variants() {
-  return {{"warm", IrrrOptions()}, {"paper", IrrrOptions::PaperFaithful()}};
+// "warm-budget": the warm engine with a step budget (--step-budget).
+std::vector<Variant> Variants(int step_budget) {
+  IrrrOptions budgeted;
+  budgeted.step_budget = step_budget;
+  return {
+      {"warm", IrrrOptions()}, {"warm-budget", budgeted}, {"paper", IrrrOptions::PaperFaithful()}};
 }
 
 // Stops between steps once `budget_s` is spent (the figures then cover the steps that ran).
@@ -424,6 +428,7 @@ int Main(int argc, char** argv) {
   std::string variants = "warm";
   std::string mode = "random";
   std::string output;
+  int step_budget = 25;
   app.add_option("--shared", settings.shared, "the shared/ folder holding datasets/")
       ->capture_default_str();
   app.add_option("--datasets",
@@ -439,7 +444,10 @@ int Main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--seed", settings.outliers.seed, "seed of the wrong loops")
       ->capture_default_str();
-  app.add_option("--variants", variants, "comma-separated engines: warm, paper")
+  app.add_option("--variants", variants, "comma-separated engines: warm, warm-budget, paper")
+      ->capture_default_str();
+  app.add_option("--step-budget", step_budget, "warm-budget: solves per step (irrr.step_budget)")
+      ->check(CLI::PositiveNumber)
       ->capture_default_str();
   app.add_option("--budget",
                  settings.budget_s,
@@ -456,7 +464,7 @@ int Main(int argc, char** argv) {
   settings.datasets = SplitCommas(datasets);
   for (const std::string& name : SplitCommas(variants)) {
     bool known = false;
-    for (const Variant& v : Variants()) {
+    for (const Variant& v : Variants(step_budget)) {
       if (v.name == name) {
         settings.variants.push_back(v);
         known = true;

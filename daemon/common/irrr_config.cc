@@ -33,6 +33,7 @@ void VisitFields(IrrrOptions& options, Visitor& visit) {
   visit("cluster_gap", options.cluster_gap);
   visit("cluster_span", options.cluster_span);
   visit("arbiter", options.arbiter);
+  visit("step_budget", options.step_budget);
   visit("graph_dof", options.graph_dof);
   visit("optimizer", options.optimizer);
 }
