@@ -262,8 +262,9 @@ TEST_CASE("Manhattan + 1000 local wrong loops: none accepted, recall at least 0.
   CheckNoneWrongRecallAtLeast99(run);
 }
 
-// Wrong links that fit by bending the odometry inside a true revisit. Before a810233 both came in
-// with a true revisit at steps 6-7, and only later evidence reversed them (ReverseOutvoted):
+// Wrong links that fit by bending the odometry inside a true revisit. Judged by the chi2 increase
+// alone, both come in with a true revisit at steps 6-7, and only later evidence reverses them
+// (ReverseOutvoted):
 // - Manhattan + 1000 local, seed 2: the wrong link 910 -> 870 (3.4 m and 0.5 rad off). Clusters
 //   accepted later pinned that odometry: its removal statistic reached 13.4 times its threshold.
 // - Manhattan + 1000 local-grouped, seed 6: the wrong group 1015-1017 -> 992-994 (1.2 m off
@@ -325,8 +326,8 @@ TEST_CASE("Manhattan + 1000 local(-grouped), seeds 42 and 30: a wrong part later
 // 1575-1584 (every edge under its test). At step 44 the true lone links 1577 -> 2191 and 1574 ->
 // 2198 failed the joint test, each alone too, and were refused without naming a suspect: 1 wrong,
 // 2096 of 2099, ATE 1.079 m against the oracle's 0.794. Lone links that all fail alone then named
-// suspects too, and the two outvoted 1584 -> 1575. Since a810233 (removal statistics with the
-// Jacobians H holds) it is refused when its revisit is tried, and nothing needs reversing.
+// suspects too, and the two outvoted 1584 -> 1575. With removal statistics at the Jacobians H
+// holds, it is refused when its revisit is tried, and nothing needs reversing.
 TEST_CASE("Manhattan + 300 local, seed 1: a wrong lone link inside a true revisit is refused",
           "[datasets][irrr]") {
   const CorruptedRun run =
@@ -398,8 +399,8 @@ TEST_CASE("Intel + 1000 local, seed 14: a wrong link inside a larger good cluste
 
 // A first cluster holding many wrong links must not set the variance factor (docs/decisions.md,
 // "The variance factor"). Manhattan + 1000 local-grouped, seed 3: the first cluster has 132
-// links, the median of all their pairs says 1, and its consistent set's sample 1.9; before the
-// concentration step the factor stayed at 1 for 14 steps and 80 wrong loops were accepted. The
+// links, the median of all their pairs says 1, and its consistent set's sample 1.9; without the
+// concentration step the factor stays at 1 for 14 steps and 80 wrong loops are accepted. The
 // clean factor is 0.023 (chi2 146 at the oracle).
 TEST_CASE(
     "Manhattan + 1000 local-grouped, seed 3: a contaminated first cluster does not set "
@@ -679,7 +680,7 @@ TEST_CASE("KITTI 05: the good set's variance factor, and what a lower one refuse
 
 // Bovisa (RAWSEEDS, bag-of-words loops of the RRR author), never tuned on: its GT_GPS file holds
 // one fix per 10 odometry poses (their steps match the odometry's 10-pose steps to 0.6%). The
-// rigidly aligned RMS distance to those fixes, measured on `98d5696`: 4.15 and 5.85 m; odometry
+// rigidly aligned RMS distance to those fixes, measured: 4.15 and 5.85 m; odometry
 // alone 11.3 and 20.6 m, every loop trusted 80.7 and 59.8 m, batch RRR on 04 66.9 m (one wrong
 // cluster bends the whole map).
 TEST_CASE("Bovisa 04 and 06: the map stays within metres of GPS", "[datasets][irrr]") {
