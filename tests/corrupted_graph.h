@@ -61,6 +61,15 @@ Corrupted<Pose> MakeCorrupted(const SyntheticOptions& synthetic, const OutlierOp
   return Corrupt(MakeSyntheticGraph<Pose>(synthetic).graph, outliers);
 }
 
+// `count` wrong loops of `mode` drawn with `seed` (the other OutlierOptions as default).
+inline OutlierOptions Outliers(OutlierMode mode, int count, uint32_t seed) {
+  OutlierOptions outliers;
+  outliers.mode = mode;
+  outliers.count = count;
+  outliers.seed = seed;
+  return outliers;
+}
+
 // Loops of a corrupted graph accepted by `decisions`, true and wrong.
 struct AcceptedLoops {
   int true_loops = 0;

@@ -26,6 +26,7 @@ using testing::MakeCorrupted;
 using testing::MakeSyntheticGraph;
 using testing::MapEdges;
 using testing::NoisyWorld;
+using testing::Outliers;
 using testing::PendingInClusters;
 using testing::SyntheticOptions;
 
@@ -112,12 +113,8 @@ TEMPLATE_TEST_CASE(
   const uint32_t seed = GENERATE(1u, 2u);
   const std::string what = std::string(OutlierModeName(mode)) + " seed " + std::to_string(seed);
   INFO(what);
-  OutlierOptions outliers;
-  outliers.mode = mode;
-  outliers.count = 30;
-  outliers.seed = seed;
   const Corrupted<TestType> corrupted =
-      MakeCorrupted<TestType>(NoisyWorld<TestType>(seed), outliers);
+      MakeCorrupted<TestType>(NoisyWorld<TestType>(seed), Outliers(mode, 30, seed));
 
   IrrrOptions options = SyntheticIrrrOptions();
   SECTION("incremental iRRR") {
@@ -301,12 +298,8 @@ TEMPLATE_TEST_CASE("A step budget leaves work to later steps and decides as with
   for (OutlierMode mode : {OutlierMode::kLocalGrouped, OutlierMode::kRandomGrouped}) {
     for (uint32_t seed = 1; seed <= 3; ++seed) {
       INFO(OutlierModeName(mode) << " seed " << seed);
-      OutlierOptions outliers;
-      outliers.mode = mode;
-      outliers.count = 60;
-      outliers.seed = seed;
       const Corrupted<TestType> corrupted =
-          MakeCorrupted<TestType>(NoisyWorld<TestType>(seed), outliers);
+          MakeCorrupted<TestType>(NoisyWorld<TestType>(seed), Outliers(mode, 60, seed));
       IrrrOptions options = SyntheticIrrrOptions();
       std::vector<StepResult> unbounded_steps;
       const std::vector<LoopDecision> unbounded =
@@ -350,11 +343,8 @@ TEMPLATE_TEST_CASE("Work a step budget deferred survives a step-state round trip
                    Pose3) {
   SyntheticOptions synthetic = NoisyWorld<TestType>(3);
   synthetic.num_sessions = 2;
-  OutlierOptions outliers;
-  outliers.mode = OutlierMode::kLocalGrouped;
-  outliers.count = 60;
-  outliers.seed = 3;
-  const Corrupted<TestType> corrupted = MakeCorrupted<TestType>(synthetic, outliers);
+  const Corrupted<TestType> corrupted =
+      MakeCorrupted<TestType>(synthetic, Outliers(OutlierMode::kLocalGrouped, 60, 3));
   const PoseGraph<TestType>& graph = corrupted.graph;
   const std::vector<ArrivalEvent> events = ArrivalOrder(graph);
   IrrrOptions options = SyntheticIrrrOptions();
