@@ -288,6 +288,7 @@ struct RunResult {
   double cpu_seconds = 0.0;  // of this process: tells a loaded machine from a slow algorithm
   int steps = -1;            // -1: batch
   int solves = 0;
+  int capped_steps = 0;  // steps that reached IrrrOptions::step_budget
   std::vector<double> step_ms;
   std::vector<int> odometry_faults;
 };
@@ -303,6 +304,7 @@ struct MethodRun {
   double cpu_seconds = 0.0;
   int steps = -1;  // -1: not incremental
   int solves = 0;
+  int capped_steps = 0;  // steps that reached IrrrOptions::step_budget
   std::vector<double> step_ms;
   long peak_rss_kb = 0;  // the child's maximum resident set size
   bool stopped = false;  // ran past Settings::method_seconds and was stopped: no result
@@ -329,6 +331,7 @@ RunResult RunIncrementalTimed(const std::string& label,
       const StepResult step = irrr.RunStep();
       result.step_ms.push_back(1e3 * SecondsSince(step_start));
       result.solves += step.solves;
+      result.capped_steps += step.capped ? 1 : 0;
       if (line.enabled()) {
         progress.Show(irrr);
       } else if (const double elapsed_s = SecondsSince(start); elapsed_s >= next_progress_s) {
@@ -505,6 +508,7 @@ Status RunMethod(const Case& c,
       run->seconds = result.seconds;
       run->steps = result.steps;
       run->solves = result.solves;
+      run->capped_steps = result.capped_steps;
       run->step_ms = std::move(result.step_ms);
       run->odometry_faults = std::move(result.odometry_faults);
     } else {
@@ -530,7 +534,8 @@ std::vector<double> Serialize(const MethodRun<Pose>& run) {
                              static_cast<double>(run.step_ms.size()),
                              static_cast<double>(run.accepted.size()),
                              static_cast<double>(run.estimate.size()),
-                             static_cast<double>(run.odometry_faults.size())};
+                             static_cast<double>(run.odometry_faults.size()),
+                             static_cast<double>(run.capped_steps)};
   out.insert(out.end(), run.step_ms.begin(), run.step_ms.end());
   for (char a : run.accepted) out.push_back(a);
   out.insert(out.end(), run.odometry_faults.begin(), run.odometry_faults.end());
@@ -554,7 +559,7 @@ std::vector<double> Serialize(const MethodRun<Pose>& run) {
 
 template <class Pose>
 bool Deserialize(const std::vector<double>& in, MethodRun<Pose>* run) {
-  constexpr size_t kHeader = 8;
+  constexpr size_t kHeader = 9;
   constexpr size_t kPoseNumbers = Pose::kDim == 3 ? 3 : 7;
   if (in.size() < kHeader) return false;
   const auto num_steps = static_cast<size_t>(in[4]);
@@ -568,6 +573,7 @@ bool Deserialize(const std::vector<double>& in, MethodRun<Pose>* run) {
   run->cpu_seconds = in[1];
   run->steps = static_cast<int>(in[2]);
   run->solves = static_cast<int>(in[3]);
+  run->capped_steps = static_cast<int>(in[8]);
   auto next = in.begin() + kHeader;
   run->step_ms.assign(next, next + num_steps);
   next += num_steps;
@@ -933,7 +939,11 @@ Status RunCase(const Case& c,
     if (run.steps >= 0) {
       std::vector<double> sorted = run.step_ms;
       std::sort(sorted.begin(), sorted.end());
-      steps = fmt::format("{} ({} solves)", run.steps, run.solves);
+      steps = fmt::format(
+          "{} ({} solves{})",
+          run.steps,
+          run.solves,
+          run.capped_steps > 0 ? fmt::format(", {} capped", run.capped_steps) : std::string());
       if (!sorted.empty()) {
         latency = fmt::format("{:.1f} | {:.1f} | {:.1f} | {:.1f}",
                               Percentile(sorted, 0.50),
