@@ -178,7 +178,8 @@ std::vector<Eigen::MatrixXd> GoodSet<Pose>::ProjectedCovariances(
 
 namespace {
 
-// For groups of loops whose ends lie in one component of `good` (its open trial's, during one):
+// For groups of edges each of whose ends lie in one component of `good` (its open trial's, during
+// one; groups of different components are recovered apart):
 // visit(k, stack, projected) with group k's loops stacked at `estimate`, their Jacobians at
 // `linearization` if given (StackEdges, against their end poses), and J Sigma J' from the
 // factorization. Groups of at most kLinearizeChunk loops together (a larger one alone) share one
@@ -193,11 +194,16 @@ void ForEachProjectedCovariance(const GoodSet<Pose>& good,
                                 const std::vector<Pose>& estimate,
                                 const std::vector<Pose>* linearization,
                                 Visit visit) {
+  // A chunk is recovered from one solver: its groups lie in one component.
+  auto component = [&](size_t k) {
+    return good.ComponentOf(graph.vertex(graph.edge(groups[k].front()).from).session);
+  };
   for (size_t first = 0; first < groups.size();) {
     size_t last = first;
     size_t loops = 0;
     while (last < groups.size() &&
-           (last == first || loops + groups[last].size() <= kLinearizeChunk)) {
+           (last == first || (loops + groups[last].size() <= kLinearizeChunk &&
+                              component(last) == component(first)))) {
       loops += groups[last].size();
       ++last;
     }
