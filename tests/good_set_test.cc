@@ -33,23 +33,40 @@ double GoodChi2(const GoodSet<Pose>& good, int num_sessions) {
   return chi2;
 }
 
+// Two sessions of NoisyOptions(7), with their loops split into those that join the sessions and
+// the others.
+template <class Pose>
+struct TwoSessions {
+  testing::SyntheticGraph<Pose> synthetic;
+  std::vector<int> joining;
+  std::vector<int> within;
+};
+
+template <class Pose>
+TwoSessions<Pose> MakeTwoSessions() {
+  SyntheticOptions options = NoisyOptions<Pose>(7);
+  options.num_sessions = 2;
+  TwoSessions<Pose> out{MakeSyntheticGraph<Pose>(options), {}, {}};
+  const PoseGraph<Pose>& graph = out.synthetic.graph;
+  for (int e : out.synthetic.loop_edges) {
+    const Edge<Pose>& edge = graph.edge(e);
+    const bool joins = graph.vertex(edge.from).session != graph.vertex(edge.to).session;
+    (joins ? out.joining : out.within).push_back(e);
+  }
+  return out;
+}
+
 TEMPLATE_TEST_CASE("Removal statistics of groups in different components are each their own",
                    "[good_set]",
                    Pose2,
                    Pose3) {
-  SyntheticOptions options = NoisyOptions<TestType>(7);
-  options.num_sessions = 2;
-  const auto synthetic = MakeSyntheticGraph<TestType>(options);
-  const PoseGraph<TestType>& graph = synthetic.graph;
-  std::vector<int> within;  // loops inside one session: the sessions stay two components
-  for (int e : synthetic.loop_edges) {
-    const Edge<TestType>& edge = graph.edge(e);
-    if (graph.vertex(edge.from).session == graph.vertex(edge.to).session) within.push_back(e);
-  }
+  // Only the loops inside a session: the sessions stay two components.
+  const TwoSessions<TestType> sessions = MakeTwoSessions<TestType>();
+  const PoseGraph<TestType>& graph = sessions.synthetic.graph;
   std::vector<TestType> estimate;
   GoodSet<TestType> good(&graph, &estimate, IncrementalSolverOptions());
   for (int v = 0; v < graph.num_vertices(); ++v) good.AddPose(v);
-  good.Rebuild(within, kAlignmentCap);
+  good.Rebuild(sessions.within, kAlignmentCap);
   REQUIRE(good.ComponentOf(0) != good.ComponentOf(1));
 
   // Odometry of both sessions, alternating, in one call (as a sample along the trajectories is
@@ -92,17 +109,10 @@ TEMPLATE_TEST_CASE("A good set rebuilt while its components are kept is restored
                    "[good_set]",
                    Pose2,
                    Pose3) {
-  SyntheticOptions options = NoisyOptions<TestType>(7);
-  options.num_sessions = 2;
-  const auto synthetic = MakeSyntheticGraph<TestType>(options);
-  const PoseGraph<TestType>& graph = synthetic.graph;
-  std::vector<int> joining;  // loops between the two sessions
-  std::vector<int> within;   // the others
-  for (int e : synthetic.loop_edges) {
-    const Edge<TestType>& edge = graph.edge(e);
-    const bool joins = graph.vertex(edge.from).session != graph.vertex(edge.to).session;
-    (joins ? joining : within).push_back(e);
-  }
+  const TwoSessions<TestType> sessions = MakeTwoSessions<TestType>();
+  const PoseGraph<TestType>& graph = sessions.synthetic.graph;
+  const std::vector<int>& joining = sessions.joining;
+  std::vector<int> within = sessions.within;
   REQUIRE(!joining.empty());
   REQUIRE(within.size() >= 3);
 
