@@ -332,6 +332,7 @@ void WarmEngine<Pose>::Impl::Step(int k, StepResult* result) {
   }
   if (budgeted) {
     result->deferred = static_cast<int>(Deferred().size());
+    has_deferred = result->deferred > 0;
     result->capped = OverBudget();
   }
   std::vector<int>& changed = result->changed_loops;
@@ -837,7 +838,7 @@ bool WarmEngine<Pose>::HasReleased() const {
 
 template <class Pose>
 bool WarmEngine<Pose>::HasDeferred() const {
-  return impl_->options->step_budget > 0 && !impl_->Deferred().empty();
+  return impl_->has_deferred;
 }
 
 template <class Pose>
@@ -909,6 +910,7 @@ void WarmEngine<Pose>::Restore() {
   Impl& m = *impl_;
   m.screened.clear();
   m.good.Rebuild(m.GoodLoops(), m.AlignmentCap());
+  m.has_deferred = m.options->step_budget > 0 && !m.Deferred().empty();
 }
 
 // With the engine, its Impl's members defined above (those of core/warm_reversal.cc are

@@ -599,6 +599,9 @@ struct WarmEngine<Pose>::Impl {
   bool released = false;
   int rejudging = 0;    // Rejudge under way (no challenge starts inside one)
   int step_solves = 0;  // Solves() when the step began (OverBudget)
+  // Whether the last step (or the restored state) left deferred work: HasDeferred, asked after
+  // every input, reads it instead of scanning the clusters.
+  bool has_deferred = false;
   // Per loop edge: its linearized statistic and redundancy number at its last screen (redundancy
   // -1: not screened since the engine was restored).
   std::vector<LinearizedAddition> screened;
