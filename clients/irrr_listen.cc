@@ -2,7 +2,7 @@
 //
 //   irrr-listen [--lcm-url URL] [--output MAP.g2o] [--decisions OUT.csv] [--labels LABELS.csv]
 //               [--transforms OUT.csv] [--robot R] [--plot MAP.svg] [--idle-exit S]
-//               [--config FILE]
+//               [--steps-csv STEPS.csv] [--status-csv STATUS.csv] [--config FILE]
 //
 // It assembles each solution (a correction_t with all its verdict and pose chunks) and keeps,
 // per session, the newest estimate; keys that no solution has covered yet continue the latest
@@ -20,6 +20,9 @@
 //    odometry frame lies in its component's map frame.
 //  - --plot: the map with every verdict, the odometry beside it and the time of each step
 //    (clients/common/plots.h).
+// While it runs, --steps-csv and --status-csv get one row per step correction and per status_t
+// heard, each written as it arrives (a long run can be followed with tail -f; tools/soak plots
+// them).
 // --robot R keeps only robot R's part, as a robot of a fleet would: its sessions' poses and
 // transforms, and the hypotheses with an end in them.
 // --labels prints precision and recall against irrr-corrupt's labels. Exit codes follow
@@ -60,6 +63,7 @@
 #include "irrr/loop_hypothesis_t.hpp"
 #include "irrr/solution_request_t.hpp"
 #include "irrr/solution_t.hpp"
+#include "irrr/status_t.hpp"
 #include "irrr/verdicts_t.hpp"
 
 namespace irrr {
@@ -128,6 +132,42 @@ class Listener {
     p.have_correction = true;
     p.correction = m;
     Complete(m.solution_id);
+  }
+  void OnStatus(const lcm::ReceiveBuffer* b, const std::string&) {
+    status_t m;
+    if (!Decode(b, &m)) return;
+    daemon_keyframes_ = m.n_keyframes;
+    if (status_log_ == nullptr) return;
+    *status_log_ << fmt::format("{},{},{},{},{},{},{},{},{},{},{},{:.3f},{}\n",
+                                NowUtime(),
+                                m.start_utime,
+                                static_cast<int>(m.state),
+                                m.n_keyframes,
+                                m.n_hypotheses,
+                                m.n_accepted,
+                                m.n_rejected,
+                                m.n_steps,
+                                m.queue_depth,
+                                m.n_parked,
+                                m.n_errors,
+                                m.last_step_latency_ms,
+                                m.n_recovered)
+                 << std::flush;
+  }
+  // --steps-csv and --status-csv (nullptr: not written); their header rows are written here.
+  void LogTo(std::ostream* steps, std::ostream* status) {
+    steps_log_ = steps;
+    status_log_ = status;
+    if (steps_log_ != nullptr) {
+      *steps_log_ << "received_utime,daemon_start_utime,solution_id,step,closed_utime,"
+                     "published_utime,latency_ms,decide_ms,solves,deferred,daemon_keyframes\n"
+                  << std::flush;
+    }
+    if (status_log_ != nullptr) {
+      *status_log_ << "received_utime,daemon_start_utime,state,keyframes,hypotheses,accepted,"
+                      "rejected,steps,queue_depth,parked,errors,last_step_latency_ms,recovered\n"
+                   << std::flush;
+    }
   }
   void OnVerdicts(const lcm::ReceiveBuffer* b, const std::string&) {
     verdicts_t m;
@@ -414,6 +454,21 @@ class Listener {
       latest_latency_ms_ = 1e-3 * static_cast<double>(c.published_utime - c.closed_utime);
       latencies_ms_.push_back(latest_latency_ms_);
       decide_ms_.push_back(c.decide_ms);
+      if (steps_log_ != nullptr) {
+        *steps_log_ << fmt::format("{},{},{},{},{},{},{:.3f},{:.3f},{},{},{}\n",
+                                   NowUtime(),
+                                   c.daemon_start_utime,
+                                   id,
+                                   c.step,
+                                   c.closed_utime,
+                                   c.published_utime,
+                                   latest_latency_ms_,
+                                   c.decide_ms,
+                                   c.solves,
+                                   c.deferred,
+                                   daemon_keyframes_)
+                    << std::flush;
+      }
     }
     pending_.erase(it);
     // Solutions far behind the newest complete one will not complete any more.
@@ -436,6 +491,9 @@ class Listener {
   int complete_solutions_ = 0;
   std::vector<double> latencies_ms_;
   std::vector<double> decide_ms_;
+  int64_t daemon_keyframes_ = 0;  // the latest status_t's n_keyframes
+  std::ostream* steps_log_ = nullptr;
+  std::ostream* status_log_ = nullptr;
 };
 
 struct Arguments {
@@ -449,6 +507,8 @@ struct Arguments {
   double final_wait_s = 5.0;
   std::string config;
   std::string labels;
+  std::string steps_csv;
+  std::string status_csv;
 };
 
 // "<what> over N steps: p50 .. ms, p90 .., p99 .., max .." (nothing for no steps).
@@ -588,6 +648,19 @@ int Run(Arguments args) {
     return EX_UNAVAILABLE;
   }
   Listener listener(args.robot);
+  std::ofstream steps_log;
+  std::ofstream status_log;
+  for (auto [path, log] :
+       {std::pair{&args.steps_csv, &steps_log}, {&args.status_csv, &status_log}}) {
+    if (path->empty()) continue;
+    log->open(*path);
+    if (!*log) {
+      fmt::print(stderr, "irrr-listen: cannot write {}\n", *path);
+      return EX_CANTCREAT;
+    }
+  }
+  listener.LogTo(args.steps_csv.empty() ? nullptr : &steps_log,
+                 args.status_csv.empty() ? nullptr : &status_log);
   // LCM drops what a subscription has queued beyond its capacity (default 30 messages).
   constexpr int kLcmQueueCapacity = 100000;
   using Handler = void (Listener::*)(const lcm::ReceiveBuffer*, const std::string&);
@@ -597,9 +670,13 @@ int Run(Arguments args) {
       {channels.correction, &Listener::OnCorrection},
       {channels.verdicts, &Listener::OnVerdicts},
       {channels.solution, &Listener::OnSolution},
+      {channels.status, &Listener::OnStatus},
   };
+  // The status is heard only for the CSVs: a heartbeat must not keep --idle-exit from firing.
+  const bool hear_status = !args.steps_csv.empty() || !args.status_csv.empty();
   std::vector<std::unique_ptr<RawSubscription>> subscriptions;
   for (const auto& [channel, handler] : handlers) {
+    if (channel == channels.status && !hear_status) continue;
     subscriptions.push_back(std::make_unique<RawSubscription>(
         &lcm,
         channel,
@@ -715,6 +792,14 @@ int main(int argc, char** argv) {
                  args.labels,
                  "irrr-corrupt's labels (single robot: edge_index = hypothesis_id): print "
                  "precision and recall on exit");
+  app.add_option("--steps-csv",
+                 args.steps_csv,
+                 "while running, write one row per step correction here (latency, decide time, the "
+                 "daemon's keyframes by then)");
+  app.add_option("--status-csv",
+                 args.status_csv,
+                 "while running, write one row per status_t heard here (counts, queue depth, "
+                 "latest step latency)");
   app.footer(
       "Exit codes: 0 ok, 64 usage, 65 bad labels, 69 LCM unavailable, 73 output not "
       "written, 78 bad configuration.");

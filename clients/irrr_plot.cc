@@ -2,12 +2,16 @@
 //
 //   irrr-plot INPUT --out MAP.svg|MAP.png [--decisions DECISIONS.csv] [--optimized OUT.g2o]
 //             [--ground-truth GT] [--steps STEPS.csv] [--title TEXT]
+//   irrr-plot --chart TABLE.csv --x COLUMN --y COLUMN [--y COLUMN ...] --out CHART.svg|.png
+//             [--title TEXT]
 //
 // INPUT is the graph file that was decided (g2o or TORO); --decisions the CSV of irrr-batch or
 // irrr-listen (edge_index = the input's edge index); --optimized the graph irrr-batch --output
 // (or irrr-listen --output) wrote, whose vertices give the map (without it: the initial guess);
 // --steps a CSV with a "ms" column, one row per step. Writes MAP and, beside it,
-// <stem>_before_after, <stem>_steps and <stem>_ate where there is data for them. Exit codes
+// <stem>_before_after, <stem>_steps and <stem>_ate where there is data for them. --chart draws
+// columns of any CSV with a header line against one of them instead (tools/soak's latency and
+// memory against poses received). Exit codes
 // follow sysexits.h: 64 usage, 65 bad input data, 66 input missing, 73 output not written.
 
 #include <sysexits.h>
@@ -38,31 +42,65 @@ struct Arguments {
   std::string steps;
   std::string title;
   bool skip_invalid_edges = false;
+  std::string chart;
+  std::string x;
+  std::vector<std::string> y;
 };
 
-// The "ms" column of a CSV with a header line.
-Status ReadStepMs(const std::string& path, std::vector<double>* ms) {
+// The column `name` of a CSV with a header line.
+Status ReadColumn(const std::string& path, const std::string& name, std::vector<double>* values) {
   std::ifstream in(path);
   if (!in) return Status::Error(path + ": cannot open");
   std::string line;
   std::getline(in, line);
   std::vector<std::string> header;
   std::stringstream names(line);
-  for (std::string name; std::getline(names, name, ',');) header.push_back(name);
-  const auto column = std::find(header.begin(), header.end(), "ms") - header.begin();
-  if (column == static_cast<long>(header.size())) return Status::Error(path + ": no \"ms\" column");
+  for (std::string cell; std::getline(names, cell, ',');) header.push_back(cell);
+  const auto column = std::find(header.begin(), header.end(), name) - header.begin();
+  if (column == static_cast<long>(header.size())) {
+    return Status::Error(path + ": no \"" + name + "\" column");
+  }
   for (int row = 2; std::getline(in, line); ++row) {
     std::stringstream cells(line);
     std::string cell;
     for (long k = 0; k <= column && std::getline(cells, cell, ','); ++k) {
     }
     try {
-      ms->push_back(std::stod(cell));
+      values->push_back(std::stod(cell));
     } catch (const std::exception&) {
       return Status::Error(path + ":" + std::to_string(row) + ": \"" + cell + "\" is not a number");
     }
   }
   return Status::Ok();
+}
+
+// --chart: the --y columns against the --x column.
+int Chart(const Arguments& args) {
+  std::vector<double> x;
+  if (Status s = ReadColumn(args.chart, args.x, &x); !s.ok()) {
+    fmt::print(stderr, "irrr-plot: {}\n", s.message());
+    return EX_DATAERR;
+  }
+  std::vector<ChartSeries> series;
+  for (const std::string& name : args.y) {
+    std::vector<double> y;
+    if (Status s = ReadColumn(args.chart, name, &y); !s.ok()) {
+      fmt::print(stderr, "irrr-plot: {}\n", s.message());
+      return EX_DATAERR;
+    }
+    ChartSeries& one = series.emplace_back();
+    one.name = name;
+    for (size_t k = 0; k < x.size() && k < y.size(); ++k) one.points.emplace_back(x[k], y[k]);
+  }
+  const std::string title =
+      args.title.empty() ? args.chart.substr(args.chart.rfind('/') + 1) : args.title;
+  const std::string y_label = args.y.size() == 1 ? args.y.front() : "";
+  if (Status s = WritePlot(args.out, ChartSvg(title, args.x, y_label, series)); !s.ok()) {
+    fmt::print(stderr, "irrr-plot: {}\n", s.message());
+    return EX_CANTCREAT;
+  }
+  fmt::print("plots     {}\n", args.out);
+  return EX_OK;
 }
 
 template <class Pose>
@@ -127,7 +165,7 @@ int Plot(const Arguments& args, FileFormat format) {
   }
   std::vector<double> step_ms;
   if (!args.steps.empty()) {
-    if (Status s = ReadStepMs(args.steps, &step_ms); !s.ok()) {
+    if (Status s = ReadColumn(args.steps, "ms", &step_ms); !s.ok()) {
       fmt::print(stderr, "irrr-plot: {}\n", s.message());
       return EX_DATAERR;
     }
@@ -151,7 +189,8 @@ int Plot(const Arguments& args, FileFormat format) {
 int main(int argc, char** argv) {
   irrr::Arguments args;
   CLI::App app{"irrr-plot: draw a pose graph and the decisions about its loop closures"};
-  app.add_option("input", args.input, "the graph file that was decided (g2o or TORO)")->required();
+  auto* input =
+      app.add_option("input", args.input, "the graph file that was decided (g2o or TORO)");
   app.add_option("--out", args.out, "the map plot (SVG, or PNG with rsvg-convert)")->required();
   app.add_option("--decisions", args.decisions, "decisions CSV (irrr-batch or irrr-listen)");
   app.add_option("--optimized", args.optimized, "the optimized graph (irrr-batch --output)");
@@ -162,6 +201,12 @@ int main(int argc, char** argv) {
                args.skip_invalid_edges,
                "leave out invalid edge lines as irrr-batch --skip-invalid-edges does (so that its "
                "decisions line up)");
+  auto* chart = app.add_option(
+      "--chart", args.chart, "instead of a graph: a CSV with a header line, to chart its columns");
+  app.add_option("--x", args.x, "--chart: the column along the x axis")->needs(chart);
+  app.add_option("--y", args.y, "--chart: a column to chart against --x (repeatable)")
+      ->needs(chart);
+  chart->excludes(input);
   app.footer(
       "Exit codes: 0 ok, 64 usage, 65 bad input data, 66 input missing, 73 output not written.");
   try {
@@ -169,6 +214,17 @@ int main(int argc, char** argv) {
   } catch (const CLI::ParseError& e) {
     const int code = app.exit(e);
     return code == 0 ? EX_OK : EX_USAGE;
+  }
+  if (!args.chart.empty()) {
+    if (args.x.empty() || args.y.empty()) {
+      fmt::print(stderr, "irrr-plot: --chart needs --x and at least one --y\n");
+      return EX_USAGE;
+    }
+    return irrr::Chart(args);
+  }
+  if (args.input.empty()) {
+    fmt::print(stderr, "irrr-plot: an input graph file (or --chart) is required\n");
+    return EX_USAGE;
   }
   if (!std::ifstream(args.input)) {
     fmt::print(stderr, "irrr-plot: {}: cannot open\n", args.input);

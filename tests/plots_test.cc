@@ -180,5 +180,30 @@ TEST_CASE("irrr-batch --plot and irrr-plot write every plot kind of a decided fi
                 dir + "/bad.log") == 65);
 }
 
+TEST_CASE("irrr-plot --chart draws each --y column of a CSV against --x", "[plots]") {
+  const std::string dir = TestDirectory("plots_chart");
+  WriteText(dir + "/samples.csv",
+            "seconds,poses,rss_mb,cpu_s\n1,0,12,0.1\n2,500,20,0.9\n3,1000,-2,2\n");
+  const std::string chart = std::string(IRRR_PLOT) + " --chart " + Quoted(dir + "/samples.csv") +
+                            " --x poses --y rss_mb --y cpu_s --title memory --out " +
+                            Quoted(dir + "/chart.svg");
+  REQUIRE(RunTool(chart, dir + "/chart.log") == 0);
+  const std::string svg = ReadText(dir + "/chart.svg");
+  CHECK(XmlProblem(svg).empty());
+  CHECK(Count(svg, "class=\"point\"") == 6);   // 3 rows x 2 columns
+  CHECK(Count(svg, "class=\"legend\"") == 4);  // a name and a dot per column
+  CHECK_THAT(svg, Catch::Contains(">rss_mb<") && Catch::Contains(">cpu_s<"));
+  // The negative value lowers the axis: its label reads -2.
+  CHECK_THAT(svg, Catch::Contains(">-2<"));
+  // A column that is not there, and --chart without --y.
+  CHECK(RunTool(std::string(IRRR_PLOT) + " --chart " + Quoted(dir + "/samples.csv") +
+                    " --x poses --y memory --out " + Quoted(dir + "/x.svg"),
+                dir + "/bad.log") == 65);
+  CHECK_THAT(ReadText(dir + "/bad.log"), Catch::Contains("no \"memory\" column"));
+  CHECK(RunTool(std::string(IRRR_PLOT) + " --chart " + Quoted(dir + "/samples.csv") +
+                    " --x poses --out " + Quoted(dir + "/x.svg"),
+                dir + "/usage.log") == 64);
+}
+
 }  // namespace
 }  // namespace irrr

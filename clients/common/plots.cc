@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdlib>
 #include <fstream>
+#include <iterator>
 #include <limits>
 #include <utility>
 
@@ -428,6 +429,37 @@ std::string AteSvg(const std::string& title, const std::vector<double>& errors_m
         f.Y(counts[b]),
         f.X((b + 1) * width) - f.X(b * width),
         f.Y(0) - f.Y(counts[b])));
+  }
+  return svg.Finish();
+}
+
+std::string ChartSvg(const std::string& title,
+                     const std::string& x_label,
+                     const std::string& y_label,
+                     const std::vector<ChartSeries>& series) {
+  static const char* const kColours[] = {"#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd"};
+  Svg svg(800, 460);
+  svg.Text(400, 20, title, 15, "middle", "title");
+  double min_x = 0, max_x = 1e-3, min_y = 0, max_y = 1e-3;
+  for (const ChartSeries& s : series) {
+    for (const auto& [x, y] : s.points) {
+      min_x = std::min(min_x, x), max_x = std::max(max_x, x);
+      min_y = std::min(min_y, y), max_y = std::max(max_y, y);
+    }
+  }
+  const Frame f = Frame::Fit(min_x, max_x, min_y, max_y, 80, 40, 690, 360, false);
+  DrawAxes(f, max_x, max_y, x_label, y_label, &svg);
+  for (size_t k = 0; k < series.size(); ++k) {
+    const char* colour = kColours[k % std::size(kColours)];
+    for (const auto& [x, y] : series[k].points) {
+      svg.Add(fmt::format(R"(<circle class="point" cx="{:.1f}" cy="{:.1f}" r="1.5" fill="{}"/>)",
+                          f.X(x),
+                          f.Y(y),
+                          colour));
+    }
+    svg.Text(90, 56 + 16 * static_cast<double>(k), series[k].name, 12, "start", "legend");
+    svg.Add(fmt::format(
+        R"(<circle class="legend" cx="84" cy="{:.1f}" r="4" fill="{}"/>)", 52 + 16.0 * k, colour));
   }
   return svg.Finish();
 }

@@ -67,6 +67,18 @@ std::string StepTimeSvg(const std::string& title, const std::vector<double>& ste
 // Per-pose absolute trajectory errors (m): a histogram.
 std::string AteSvg(const std::string& title, const std::vector<double>& errors_m);
 
+// Named (x, y) points: one series of a chart.
+struct ChartSeries {
+  std::string name;
+  std::vector<std::pair<double, double>> points;
+};
+// y against x, one colour per series (named in a legend), each point a dot; both axes from 0
+// (or below, for negative data).
+std::string ChartSvg(const std::string& title,
+                     const std::string& x_label,
+                     const std::string& y_label,
+                     const std::vector<ChartSeries>& series);
+
 // Writes `svg` to `path`; when `path` ends in .png, writes the SVG beside it (same stem) and
 // converts it with rsvg-convert (error if that is not installed).
 Status WritePlot(const std::string& path, const std::string& svg);
