@@ -185,12 +185,19 @@ Status Journal::Write(const std::vector<uint8_t>& bytes, int64_t records) {
   return Status::Ok();
 }
 
-Status Journal::Append(const std::vector<JournalRecord>& records) {
+Status Journal::Append(const std::vector<JournalRecord>& records,
+                       std::vector<uint32_t>* crc_after) {
   if (fd_ < 0) return Status::Error("journal: not open");
+  if (crc_after != nullptr) crc_after->clear();
   if (records.empty()) return Status::Ok();
   std::vector<uint8_t> out;
+  uint32_t crc = crc_;
   for (const JournalRecord& r : records) {
     const std::vector<uint8_t> encoded = EncodeJournalRecord(r);
+    if (crc_after != nullptr) {
+      crc = ContinueCrc32(crc, encoded.data(), encoded.size());
+      crc_after->push_back(crc);
+    }
     out.insert(out.end(), encoded.begin(), encoded.end());
     if (sync_ == JournalSyncPolicy::kAlways) {
       if (Status s = Write(out, 1); !s.ok()) return s;

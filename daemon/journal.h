@@ -49,8 +49,11 @@ class Journal {
   // Opens (creating it if missing) the journal at `path`, reads back every valid record into
   // `recovery`, truncates a torn tail, and positions for appending.
   Status Open(const std::string& path, JournalSyncPolicy sync, JournalRecovery* recovery);
-  // Appends records (one write), then syncs per the policy.
-  Status Append(const std::vector<JournalRecord>& records);
+  // Appends records (one write), then syncs per the policy. `crc_after`, when given, gets the
+  // journal's CRC after each of them: what names a prefix that ends inside the batch (a snapshot
+  // taken before the whole batch is applied).
+  Status Append(const std::vector<JournalRecord>& records,
+                std::vector<uint32_t>* crc_after = nullptr);
   int64_t size_bytes() const { return size_; }
   const std::string& path() const { return path_; }
   // The records it holds, and the CRC-32 of all of them as stored: what names its content for a

@@ -298,6 +298,7 @@ void Service::State::RunSteps(Engine<Pose>& engine, int64_t closed_utime) {
     const StepResult step = engine.irrr.RunStep();
     const double decide_ms =
         std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+    steps_s_since_snapshot += 1e-3 * decide_ms;
     PublishStep(engine, step, closed_utime, decide_ms);
   }
 }
@@ -311,35 +312,47 @@ int Service::ProcessQueued(std::chrono::milliseconds wait) {
     st.wake = false;
     batch.swap(st.queue);
   }
+  // The journal's records and CRC after each input of the batch (snapshots within it).
+  int64_t records_before = 0;
+  std::vector<uint32_t> crc_after;
   if (st.journal != nullptr && !batch.empty()) {
     std::vector<JournalRecord> records;
     records.reserve(batch.size());
     for (const Input& input : batch) {
       records.push_back({JournalKind(input.kind), input.received_utime, input.bytes});
     }
-    if (Status s = st.journal->Append(records); !s.ok()) {
+    records_before = st.journal->records();
+    if (Status s = st.journal->Append(records, &crc_after); !s.ok()) {
       spdlog::error("journal: {} (inputs are applied but not kept)", s.message());
       std::lock_guard<std::mutex> lock(st.stats_mutex);
       st.journal_error = s.message();
     }
   }
-  for (const Input& input : batch) {
-    st.Apply(input);
+  for (size_t k = 0; k < batch.size(); ++k) {
+    st.Apply(batch[k]);
     --st.unapplied;
     if (st.unapplied.load() == 0 ||
         std::chrono::steady_clock::now() - st.last_refresh >= State::kRefreshPeriod) {
       st.Refresh();
     }
-  }
-  if (st.solution_requested.exchange(false)) st.PublishComplete();
-  if (!st.snapshot_path.empty() &&
-      st.journal->records() - st.snapshot_at >= st.daemon.journal.snapshot_every) {
-    if (Status s = WriteSnapshot(); !s.ok()) {
-      spdlog::error("snapshot: {} (a restart replays more of the journal)", s.message());
-      st.snapshot_at = st.journal->records();  // tried; not again before another period
+    if (k < crc_after.size()) {
+      st.SnapshotIfDue(records_before + static_cast<int64_t>(k) + 1, crc_after[k]);
     }
   }
+  if (st.solution_requested.exchange(false)) st.PublishComplete();
   return static_cast<int>(batch.size());
+}
+
+void Service::State::SnapshotIfDue(int64_t records, uint32_t crc) {
+  const DaemonJournal& every = daemon.journal;
+  const bool due = records - snapshot_at >= every.snapshot_every ||
+                   (every.snapshot_after_s > 0 && steps_s_since_snapshot >= every.snapshot_after_s);
+  if (snapshot_path.empty() || records <= snapshot_at || !due) return;
+  if (Status s = SnapshotAt(records, crc); !s.ok()) {
+    spdlog::error("snapshot: {} (a restart replays more of the journal)", s.message());
+    snapshot_at = records;  // tried; not again before another period
+    steps_s_since_snapshot = 0.0;
+  }
 }
 
 void Service::WakeWorker() {

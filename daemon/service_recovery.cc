@@ -38,6 +38,7 @@ Status Service::State::WriteSnapshot(int64_t records, uint32_t crc) {
     return s;
   }
   snapshot_at = records;
+  steps_s_since_snapshot = 0.0;
   snapshot_bytes = static_cast<int64_t>(w.bytes().size());
   return Status::Ok();
 }
@@ -124,23 +125,28 @@ void Service::SetJournal(Journal* journal) {
 
 Status Service::WriteSnapshot() {
   State& st = *state_;
-  if (st.journal == nullptr || st.snapshot_path.empty()) {
+  if (st.journal == nullptr) return st.SnapshotAt(0, 0);
+  return st.SnapshotAt(st.journal->records(), st.journal->crc());
+}
+
+Status Service::State::SnapshotAt(int64_t records, uint32_t crc) {
+  if (journal == nullptr || snapshot_path.empty()) {
     return Status::Error("snapshots are off (no journal, or daemon.journal.snapshot_every 0)");
   }
   {
-    std::lock_guard<std::mutex> lock(st.stats_mutex);
-    if (!st.journal_error.empty()) {
-      return Status::Error("the journal lacks inputs that were applied (" + st.journal_error +
+    std::lock_guard<std::mutex> lock(stats_mutex);
+    if (!journal_error.empty()) {
+      return Status::Error("the journal lacks inputs that were applied (" + journal_error +
                            "): no snapshot would match it");
     }
   }
   const auto start = std::chrono::steady_clock::now();
-  if (Status s = st.WriteSnapshot(st.journal->records(), st.journal->crc()); !s.ok()) return s;
+  if (Status s = WriteSnapshot(records, crc); !s.ok()) return s;
   spdlog::info(
       "snapshot of the first {} inputs ({:.2f} MB) written to {} in {:.1f} ms",
-      st.journal->records(),
-      1e-6 * static_cast<double>(st.snapshot_bytes),
-      st.snapshot_path,
+      records,
+      1e-6 * static_cast<double>(snapshot_bytes),
+      snapshot_path,
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count());
   return Status::Ok();
 }

@@ -113,8 +113,10 @@ struct Service::State {
   std::atomic<bool> replaying{false};
   // Off while the inputs a snapshot covers are fed again: their steps are in the snapshot.
   bool run_steps = true;
-  std::string snapshot_path;   // "" = no snapshots
-  int64_t snapshot_at = 0;     // journal records the last snapshot covers
+  std::string snapshot_path;  // "" = no snapshots
+  int64_t snapshot_at = 0;    // journal records the last snapshot covers
+  double steps_s_since_snapshot =
+      0.0;                     // worker: the steps' time since it (journal.snapshot_after_s)
   int64_t snapshot_bytes = 0;  // the last snapshot body's size
 
   // Receiving thread: each sender's inputs back in its order, and the senders ignored.
@@ -327,6 +329,13 @@ struct Service::State {
   std::string OptionsText() const;
   // Worker: the state after the journal's `records` records, whose CRC is `crc`.
   Status WriteSnapshot(int64_t records, uint32_t crc);
+  // The same after checking that snapshots are on and the journal holds every input applied;
+  // logs what it wrote.
+  Status SnapshotAt(int64_t records, uint32_t crc);
+  // Worker, after each input applied: a snapshot when journal.snapshot_every inputs or
+  // journal.snapshot_after_s seconds of steps have passed since the last one. `records` and
+  // `crc` name the journal's prefix applied so far.
+  void SnapshotIfDue(int64_t records, uint32_t crc);
   // Reads the snapshot at `path` and checks that it fits `recovery` (the journal it was taken
   // from, at least as far as it covers) and the current options. False, with the reason in
   // `why`, when there is none or it cannot be used.

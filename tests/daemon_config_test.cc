@@ -84,6 +84,8 @@ TEST_CASE("Daemon configuration errors name the key", "[daemon][config]") {
   CHECK_THAT(error(R"({"daemon": {"log_level": "loud"}})"), Contains("daemon.log_level"));
   CHECK_THAT(error(R"({"daemon": {"channels": {"loop": "IRRR_KEYFRAME"}}})"),
              Contains("used by another channel"));
+  CHECK_THAT(error(R"({"daemon": {"journal": {"snapshot_after_s": -1}}})"),
+             Contains("snapshot_after_s must be finite and >= 0"));
   CHECK_THAT(error(R"({"irrr": {"alpha": 2}})"), Contains("irrr"));
   CHECK_THAT(error(R"({"irrr": {"cluster_gap": "ten"}})"), Contains("irrr.cluster_gap"));
 }

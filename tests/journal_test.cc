@@ -68,6 +68,30 @@ int64_t FileSize(const std::string& path) {
   return size;
 }
 
+TEST_CASE("Journal: a batch's append names the CRC after each of its records", "[reliability]") {
+  const std::string path = TestDirectory("journal_batch_crc") + "/journal";
+  std::remove(path.c_str());
+  Journal journal;
+  JournalRecovery recovery;
+  REQUIRE(journal.Open(path, JournalSyncPolicy::kNever, &recovery).ok());
+  std::vector<JournalRecord> all;
+  for (uint8_t k = 0; k < 3; ++k) all.push_back(Record(k, 5 + k));
+  REQUIRE(journal.Append(all).ok());
+  std::vector<JournalRecord> batch;
+  for (uint8_t k = 3; k < 8; ++k) batch.push_back(Record(k, 40 - 3 * k));
+  std::vector<uint32_t> crc_after;
+  REQUIRE(journal.Append(batch, &crc_after).ok());
+  all.insert(all.end(), batch.begin(), batch.end());
+  REQUIRE(crc_after.size() == batch.size());
+  // Each is the CRC a journal holding exactly the records up to it has (what a snapshot names).
+  for (size_t k = 0; k < batch.size(); ++k) {
+    INFO("record " << 3 + k);
+    CHECK(crc_after[k] == JournalCrc(all, 3 + k + 1));
+  }
+  CHECK(crc_after.back() == journal.crc());
+  CHECK(crc_after.front() != JournalCrc(all, 3));
+}
+
 TEST_CASE("Journal: records come back as written; a torn or corrupt tail is dropped",
           "[reliability]") {
   const std::string dir = TestDirectory("journal");

@@ -197,6 +197,7 @@ void RunWithSnapshot(const std::string& path,
   std::remove((path + ".snapshot").c_str());
   DaemonOptions daemon = FastResync();
   daemon.journal.snapshot_every = 1 << 30;  // only when asked
+  daemon.journal.snapshot_after_s = 0.0;
   RecordingSink sink;
   Service service(daemon, CaseOptions(), &sink);
   Journal journal;
@@ -290,6 +291,72 @@ TEST_CASE("A restart from a snapshot runs no step it covers and rebuilds the sam
     }
     CHECK(differ_from_095 > 0);
   }
+}
+
+// Runs the Intel case through a service with a journal at `path` under `journal` options, in one
+// batch (everything received before the worker runs) or input by input; returns its decisions and
+// estimate at the end.
+void RunJournaled(const std::string& path,
+                  const DaemonJournal& journal_options,
+                  bool one_batch,
+                  std::vector<HypothesisDecision>* decisions,
+                  std::vector<Service::SessionEstimate>* estimate) {
+  const Case& c = IntelCase();
+  std::remove(path.c_str());
+  std::remove((path + ".snapshot").c_str());
+  DaemonOptions daemon = FastResync();
+  daemon.journal = journal_options;
+  RecordingSink sink;
+  Service service(daemon, CaseOptions(), &sink);
+  Journal journal;
+  JournalRecovery recovery;
+  REQUIRE(journal.Open(path, JournalSyncPolicy::kNever, &recovery).ok());
+  service.SetJournal(&journal);
+  MessageSequencer producer("robot", daemon.channels);
+  for (const ReplayMessage& m : c.messages) {
+    const auto encoded = producer.Encode(m, NowUtime());
+    service.Receive(encoded.first, encoded.second.data(), static_cast<int>(encoded.second.size()));
+    if (!one_batch) service.ProcessQueued(std::chrono::milliseconds(0));
+  }
+  if (one_batch) {
+    REQUIRE(static_cast<size_t>(service.ProcessQueued(std::chrono::milliseconds(0))) ==
+            c.messages.size());
+  }
+  *decisions = service.Decisions();
+  *estimate = service.Estimates();
+}
+
+TEST_CASE("Snapshots are taken within a batch, by input count or by the steps' time",
+          "[reliability][slow]") {
+  const Case& c = IntelCase();
+  const size_t total = c.messages.size();
+  const std::string path = TestDirectory("reliability_snapshot_due") + "/journal";
+  std::vector<HypothesisDecision> decisions;
+  std::vector<Service::SessionEstimate> estimate;
+  std::vector<HypothesisDecision> recovered;
+  std::vector<Service::SessionEstimate> recovered_estimate;
+  DaemonJournal options;
+  SECTION("by count: the one snapshot falls 7 inputs before the end of the only batch") {
+    options.snapshot_every = static_cast<int>(total) - 7;
+    options.snapshot_after_s = 0.0;
+    RunJournaled(path, options, /*one_batch=*/true, &decisions, &estimate);
+    const std::string text = Restart(path, CaseOptions(), &recovered, &recovered_estimate);
+    CHECK_THAT(text,
+               Contains("restored the snapshot of the first " + std::to_string(total - 7) +
+                        " inputs, then replayed 7 inputs"));
+  }
+  SECTION("by the steps' time alone, input by input and in one batch") {
+    // The case's steps take far more than 0.05 s in all: snapshots are written by time alone.
+    options.snapshot_every = 1 << 30;
+    options.snapshot_after_s = 0.05;
+    const bool one_batch = GENERATE(false, true);
+    INFO("one batch: " << one_batch);
+    RunJournaled(path, options, one_batch, &decisions, &estimate);
+    const std::string text = Restart(path, CaseOptions(), &recovered, &recovered_estimate);
+    INFO(text);
+    CHECK_THAT(text, Contains("restored the snapshot of the first"));
+  }
+  CheckSameState(recovered, recovered_estimate, decisions, estimate, kRestoredTolerance);
 }
 
 }  // namespace

@@ -1,5 +1,6 @@
 #include "daemon/common/irrr_config.h"
 
+#include <cmath>
 #include <fstream>
 #include <limits>
 #include <set>
@@ -80,6 +81,7 @@ void VisitFields(DaemonJournal& journal, Visitor& visit) {
   visit("path", journal.path);
   visit("fsync", journal.fsync);
   visit("snapshot_every", journal.snapshot_every);
+  visit("snapshot_after_s", journal.snapshot_after_s);
 }
 
 template <class Visitor>
@@ -412,6 +414,9 @@ Status DaemonOptions::Validate() const {
     return Status::Error("resync: interval_ms must be >= 1 and give_up_ms >= interval_ms");
   }
   if (journal.snapshot_every < 0) return Status::Error("journal: snapshot_every must be >= 0");
+  if (!(journal.snapshot_after_s >= 0.0 && std::isfinite(journal.snapshot_after_s))) {
+    return Status::Error("journal: snapshot_after_s must be finite and >= 0");
+  }
   if (merge.window_ms < 0) return Status::Error("merge: window_ms must be >= 0");
   for (const std::string& sender : merge.senders) {
     if (sender.empty() || sender.size() > 64) {

@@ -92,6 +92,10 @@ struct DaemonJournal {
   // A snapshot of the state ("<path>.snapshot") every this many inputs, so that a restart runs
   // only the steps of the inputs after it; 0 = none (a restart re-runs every step).
   int snapshot_every = 10000;
+  // With snapshots on, also one as soon as the steps since the last one have taken this many
+  // seconds: a restart re-runs those steps, so this bounds its time on a large graph whose steps
+  // are slow; 0 = by input count only.
+  double snapshot_after_s = 2.0;
 };
 
 // The daemon's own settings (the "daemon" object of config/irrrd.json).
