@@ -82,7 +82,7 @@ std::vector<LoopDecision> Decide(const PoseGraph<Pose>& graph, std::vector<int>*
 }
 
 TEMPLATE_TEST_CASE("Loops arriving in reversed order are decided as in forward order",
-                   "[arbiter]",
+                   "[arbiter][slow]",
                    Pose2,
                    Pose3) {
   using Pose = TestType;

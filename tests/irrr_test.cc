@@ -213,7 +213,7 @@ constexpr double kRestoredWarmTolerance = 1e-2;
 
 TEMPLATE_TEST_CASE(
     "An Irrr fed the inputs without their steps, given the step state, goes on as the original",
-    "[irrr]",
+    "[irrr][slow]",
     Pose2,
     Pose3) {
   SyntheticOptions synthetic = NoisyWorld<TestType>(3);
@@ -290,7 +290,7 @@ TEMPLATE_TEST_CASE(
 }
 
 TEMPLATE_TEST_CASE("A step budget leaves work to later steps and decides as without it",
-                   "[irrr][budget]",
+                   "[irrr][budget][slow]",
                    Pose2,
                    Pose3) {
   int capped = 0;
@@ -683,7 +683,7 @@ PoseGraph<Pose2> WithSharedRunErrors(const PoseGraph<Pose2>& graph,
 }
 
 TEST_CASE("Runs of loops that share their error: the good set's variance factor is used",
-          "[irrr]") {
+          "[irrr][slow]") {
   SyntheticOptions synthetic = NoisyWorld<Pose2>(7);
   synthetic.num_poses = 600;
   synthetic.information_scale = 0.1;  // the noise's own factor: what the clusters see
