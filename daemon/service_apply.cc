@@ -2,8 +2,10 @@
 // session events), inputs that refer to a keyframe not received yet parked until it arrives, and
 // the steps that become due run and published (service_state.h).
 
+#include <algorithm>
 #include <chrono>
 #include <deque>
+#include <iterator>
 #include <mutex>
 #include <string>
 #include <tuple>
@@ -305,12 +307,17 @@ void Service::State::RunSteps(Engine<Pose>& engine, int64_t closed_utime) {
 
 int Service::ProcessQueued(std::chrono::milliseconds wait) {
   State& st = *state_;
+  // The most inputs taken (and journaled) at once: a crash leaves at most these journaled but not
+  // applied, and a restart decides them before it listens again.
+  constexpr size_t kMaxBatch = 256;
   std::deque<Input> batch;
   {
     std::unique_lock<std::mutex> lock(st.queue_mutex);
     st.queue_changed.wait_for(lock, wait, [&] { return !st.queue.empty() || st.wake; });
     st.wake = false;
-    batch.swap(st.queue);
+    const auto end = st.queue.begin() + std::min(st.queue.size(), kMaxBatch);
+    batch.assign(std::make_move_iterator(st.queue.begin()), std::make_move_iterator(end));
+    st.queue.erase(st.queue.begin(), end);
   }
   // The journal's records and CRC after each input of the batch (snapshots within it).
   int64_t records_before = 0;

@@ -103,7 +103,7 @@ TEST_CASE("Over memq://, the service decides as RunIncrementalIrrr and merges th
     while (lcm.handleTimeout(0) > 0) {
     }
     // Apply as the worker would, in arrival order (its corrections land in the memq queue).
-    service.ProcessQueued(std::chrono::milliseconds(0));
+    ApplyQueued(&service);
   }
   while (lcm.handleTimeout(0) > 0) {
   }
@@ -190,7 +190,7 @@ TEST_CASE("Two files injected as two robots keep their keys apart and their own 
   for (const ReplayMessage& m : messages) {
     const auto [channel, bytes] = fleet.Encode(m, NowUtime());
     service.Receive(channel, bytes.data(), static_cast<int>(bytes.size()));
-    service.ProcessQueued(std::chrono::milliseconds(0));
+    ApplyQueued(&service);
   }
   const status_t status = service.CurrentStatus();
   const std::vector<error_t> errors = sink.Decoded<error_t>(daemon.channels.error);

@@ -85,6 +85,12 @@ struct ServiceReceiver {
   }
 };
 
+// Runs the worker until its queue is empty (it takes at most 256 inputs at a time).
+inline void ApplyQueued(Service* service) {
+  while (service->ProcessQueued(std::chrono::milliseconds(0)) > 0) {
+  }
+}
+
 inline IrrrOptions TestOptions() {
   IrrrOptions options;
   options.cluster_gap = 10.0;
@@ -131,7 +137,7 @@ class Producer {
     m.header.seq = next_[m.header.sender]++;
     return EncodeMessage(m);
   }
-  // Sends and, with `apply`, lets the worker apply it at once.
+  // Sends and, with `apply`, lets the worker apply it (and whatever was queued before it) at once.
   template <class Message>
   void Send(const Message& m, bool apply = true) {
     Raw(ChannelOf(m), Stamp(m), apply);
@@ -139,7 +145,7 @@ class Producer {
   // Bytes as they are (not stamped).
   void Raw(const std::string& channel, const std::vector<uint8_t>& bytes, bool apply = true) {
     service_->Receive(channel, bytes.data(), static_cast<int>(bytes.size()));
-    if (apply) service_->ProcessQueued(std::chrono::milliseconds(0));
+    if (apply) ApplyQueued(service_);
   }
   std::string ChannelOf(const keyframe_t&) const { return channels_.keyframe; }
   std::string ChannelOf(const loop_hypothesis_t&) const { return channels_.loop; }
@@ -267,7 +273,7 @@ class LossyProducer {
       }
     }
     Flush();
-    service_->ProcessQueued(std::chrono::milliseconds(0));
+    ApplyQueued(service_);
   }
 
   // Lets time pass, the service tick and the producer answer its requests.
@@ -283,7 +289,7 @@ class LossyProducer {
         }
       }
     }
-    service_->ProcessQueued(std::chrono::milliseconds(0));
+    ApplyQueued(service_);
   }
 
   int64_t NextSeq() const {
@@ -364,7 +370,7 @@ inline void SendFirstKeyframe(Service* service,
   k.odom_pose = PoseToWire(Pose2());
   const std::vector<uint8_t> bytes = EncodeMessage(k);
   service->Receive(ch.keyframe, bytes.data(), static_cast<int>(bytes.size()));
-  service->ProcessQueued(std::chrono::milliseconds(0));
+  ApplyQueued(service);
 }
 
 }  // namespace irrr

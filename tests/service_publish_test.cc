@@ -95,7 +95,7 @@ std::vector<Service::SessionEstimate> RunFleet(const std::vector<ReplayMessage>&
   for (const ReplayMessage& m : messages) {
     const auto [channel, bytes] = fleet.Encode(m, NowUtime());
     service.Receive(channel, bytes.data(), static_cast<int>(bytes.size()));
-    service.ProcessQueued(std::chrono::milliseconds(0));
+    ApplyQueued(&service);
   }
   *decisions = service.Decisions();
   *status = service.CurrentStatus();
@@ -298,7 +298,7 @@ TEST_CASE("A consumer's solution request is answered with every pose and every v
     const auto [channel, bytes] = producer.Encode(m, NowUtime());
     service.Receive(channel, bytes.data(), static_cast<int>(bytes.size()));
   }
-  service.ProcessQueued(std::chrono::milliseconds(0));
+  ApplyQueued(&service);
   sink.New<correction_t>(daemon.channels.correction);
   sink.New<verdicts_t>(daemon.channels.verdicts);
   sink.New<solution_t>(daemon.channels.solution);
@@ -308,7 +308,7 @@ TEST_CASE("A consumer's solution request is answered with every pose and every v
   request.reason = "test";
   const std::vector<uint8_t> bytes = EncodeMessage(request);
   service.Receive(daemon.channels.solution_request, bytes.data(), static_cast<int>(bytes.size()));
-  service.ProcessQueued(std::chrono::milliseconds(0));
+  ApplyQueued(&service);
   const std::vector<correction_t> corrections = sink.New<correction_t>(daemon.channels.correction);
   REQUIRE(corrections.size() == 1);
   const correction_t& complete = corrections[0];

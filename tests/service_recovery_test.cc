@@ -172,7 +172,7 @@ TEST_CASE("A service that dies mid-stream restarts from its journal and ends as 
       }
     }
     if (death == deaths.size()) {
-      service.ProcessQueued(std::chrono::milliseconds(0));
+      ApplyQueued(&service);
       const status_t status = service.CurrentStatus();
       REQUIRE(status.n_senders == 1);
       CHECK(status.senders[0].next_seq == static_cast<int64_t>(encoded.size()));
@@ -208,7 +208,7 @@ void RunWithSnapshot(const std::string& path,
   for (size_t k = 0; k < c.messages.size(); ++k) {
     const auto encoded = producer.Encode(c.messages[k], NowUtime());
     service.Receive(encoded.first, encoded.second.data(), static_cast<int>(encoded.second.size()));
-    service.ProcessQueued(std::chrono::milliseconds(0));
+    ApplyQueued(&service);
     if (k + 1 == snapshot_after) REQUIRE(service.WriteSnapshot().ok());
   }
   *decisions = service.Decisions();
@@ -293,12 +293,12 @@ TEST_CASE("A restart from a snapshot runs no step it covers and rebuilds the sam
   }
 }
 
-// Runs the Intel case through a service with a journal at `path` under `journal` options, in one
-// batch (everything received before the worker runs) or input by input; returns its decisions and
-// estimate at the end.
+// Runs the Intel case through a service with a journal at `path` under `journal` options, in
+// batches (everything received before the worker runs) or input by input; returns its decisions
+// and estimate at the end.
 void RunJournaled(const std::string& path,
                   const DaemonJournal& journal_options,
-                  bool one_batch,
+                  bool batched,
                   std::vector<HypothesisDecision>* decisions,
                   std::vector<Service::SessionEstimate>* estimate) {
   const Case& c = IntelCase();
@@ -316,12 +316,9 @@ void RunJournaled(const std::string& path,
   for (const ReplayMessage& m : c.messages) {
     const auto encoded = producer.Encode(m, NowUtime());
     service.Receive(encoded.first, encoded.second.data(), static_cast<int>(encoded.second.size()));
-    if (!one_batch) service.ProcessQueued(std::chrono::milliseconds(0));
+    if (!batched) service.ProcessQueued(std::chrono::milliseconds(0));
   }
-  if (one_batch) {
-    REQUIRE(static_cast<size_t>(service.ProcessQueued(std::chrono::milliseconds(0))) ==
-            c.messages.size());
-  }
+  if (batched) ApplyQueued(&service);
   *decisions = service.Decisions();
   *estimate = service.Estimates();
 }
@@ -336,22 +333,22 @@ TEST_CASE("Snapshots are taken within a batch, by input count or by the steps' t
   std::vector<HypothesisDecision> recovered;
   std::vector<Service::SessionEstimate> recovered_estimate;
   DaemonJournal options;
-  SECTION("by count: the one snapshot falls 7 inputs before the end of the only batch") {
+  SECTION("by count: the one snapshot falls 7 inputs before the end, inside the last batch") {
     options.snapshot_every = static_cast<int>(total) - 7;
     options.snapshot_after_s = 0.0;
-    RunJournaled(path, options, /*one_batch=*/true, &decisions, &estimate);
+    RunJournaled(path, options, /*batched=*/true, &decisions, &estimate);
     const std::string text = Restart(path, CaseOptions(), &recovered, &recovered_estimate);
     CHECK_THAT(text,
                Contains("restored the snapshot of the first " + std::to_string(total - 7) +
                         " inputs, then replayed 7 inputs"));
   }
-  SECTION("by the steps' time alone, input by input and in one batch") {
+  SECTION("by the steps' time alone, input by input and in batches") {
     // The case's steps take far more than 0.05 s in all: snapshots are written by time alone.
     options.snapshot_every = 1 << 30;
     options.snapshot_after_s = 0.05;
-    const bool one_batch = GENERATE(false, true);
-    INFO("one batch: " << one_batch);
-    RunJournaled(path, options, one_batch, &decisions, &estimate);
+    const bool batched = GENERATE(false, true);
+    INFO("in batches: " << batched);
+    RunJournaled(path, options, batched, &decisions, &estimate);
     const std::string text = Restart(path, CaseOptions(), &recovered, &recovered_estimate);
     INFO(text);
     CHECK_THAT(text, Contains("restored the snapshot of the first"));
