@@ -186,18 +186,21 @@ TEST_CASE("A service that dies mid-stream restarts from its journal and ends as 
   if (snapshot_every > 0) CHECK(restored_from_snapshot >= 3);
 }
 
-// Runs the Intel case through a service with a journal at `path`, writing a snapshot after
-// `snapshot_after` inputs (and then no more); returns its decisions and estimate at the end.
-void RunWithSnapshot(const std::string& path,
-                     size_t snapshot_after,
-                     std::vector<HypothesisDecision>* decisions,
-                     std::vector<Service::SessionEstimate>* estimate) {
+// Runs the Intel case through a service with a journal at `path` under `journal_options`, input
+// by input or in batches (everything received before the worker runs); input by input, also
+// writes a snapshot once `snapshot_after` inputs are applied (0: never asked). Returns its
+// decisions and estimate at the end.
+void RunJournaled(const std::string& path,
+                  const DaemonJournal& journal_options,
+                  bool batched,
+                  size_t snapshot_after,
+                  std::vector<HypothesisDecision>* decisions,
+                  std::vector<Service::SessionEstimate>* estimate) {
   const Case& c = IntelCase();
   std::remove(path.c_str());
   std::remove((path + ".snapshot").c_str());
   DaemonOptions daemon = FastResync();
-  daemon.journal.snapshot_every = 1 << 30;  // only when asked
-  daemon.journal.snapshot_after_s = 0.0;
+  daemon.journal = journal_options;
   RecordingSink sink;
   Service service(daemon, CaseOptions(), &sink);
   Journal journal;
@@ -208,11 +211,24 @@ void RunWithSnapshot(const std::string& path,
   for (size_t k = 0; k < c.messages.size(); ++k) {
     const auto encoded = producer.Encode(c.messages[k], NowUtime());
     service.Receive(encoded.first, encoded.second.data(), static_cast<int>(encoded.second.size()));
+    if (batched) continue;
     ApplyQueued(&service);
     if (k + 1 == snapshot_after) REQUIRE(service.WriteSnapshot().ok());
   }
+  if (batched) ApplyQueued(&service);
   *decisions = service.Decisions();
   *estimate = service.Estimates();
+}
+
+// The same with snapshots only when asked: one after `snapshot_after` inputs.
+void RunWithSnapshot(const std::string& path,
+                     size_t snapshot_after,
+                     std::vector<HypothesisDecision>* decisions,
+                     std::vector<Service::SessionEstimate>* estimate) {
+  DaemonJournal only_when_asked;
+  only_when_asked.snapshot_every = 1 << 30;
+  only_when_asked.snapshot_after_s = 0.0;
+  RunJournaled(path, only_when_asked, /*batched=*/false, snapshot_after, decisions, estimate);
 }
 
 // Restarts from `path` (and its snapshot, if any); returns the recovery text.
@@ -293,36 +309,6 @@ TEST_CASE("A restart from a snapshot runs no step it covers and rebuilds the sam
   }
 }
 
-// Runs the Intel case through a service with a journal at `path` under `journal` options, in
-// batches (everything received before the worker runs) or input by input; returns its decisions
-// and estimate at the end.
-void RunJournaled(const std::string& path,
-                  const DaemonJournal& journal_options,
-                  bool batched,
-                  std::vector<HypothesisDecision>* decisions,
-                  std::vector<Service::SessionEstimate>* estimate) {
-  const Case& c = IntelCase();
-  std::remove(path.c_str());
-  std::remove((path + ".snapshot").c_str());
-  DaemonOptions daemon = FastResync();
-  daemon.journal = journal_options;
-  RecordingSink sink;
-  Service service(daemon, CaseOptions(), &sink);
-  Journal journal;
-  JournalRecovery recovery;
-  REQUIRE(journal.Open(path, JournalSyncPolicy::kNever, &recovery).ok());
-  service.SetJournal(&journal);
-  MessageSequencer producer("robot", daemon.channels);
-  for (const ReplayMessage& m : c.messages) {
-    const auto encoded = producer.Encode(m, NowUtime());
-    service.Receive(encoded.first, encoded.second.data(), static_cast<int>(encoded.second.size()));
-    if (!batched) service.ProcessQueued(std::chrono::milliseconds(0));
-  }
-  if (batched) ApplyQueued(&service);
-  *decisions = service.Decisions();
-  *estimate = service.Estimates();
-}
-
 TEST_CASE("Snapshots are taken within a batch, by input count or by the steps' time",
           "[reliability][slow]") {
   const Case& c = IntelCase();
@@ -336,7 +322,7 @@ TEST_CASE("Snapshots are taken within a batch, by input count or by the steps' t
   SECTION("by count: the one snapshot falls 7 inputs before the end, inside the last batch") {
     options.snapshot_every = static_cast<int>(total) - 7;
     options.snapshot_after_s = 0.0;
-    RunJournaled(path, options, /*batched=*/true, &decisions, &estimate);
+    RunJournaled(path, options, /*batched=*/true, 0, &decisions, &estimate);
     const std::string text = Restart(path, CaseOptions(), &recovered, &recovered_estimate);
     CHECK_THAT(text,
                Contains("restored the snapshot of the first " + std::to_string(total - 7) +
@@ -348,7 +334,7 @@ TEST_CASE("Snapshots are taken within a batch, by input count or by the steps' t
     options.snapshot_after_s = 0.05;
     const bool batched = GENERATE(false, true);
     INFO("in batches: " << batched);
-    RunJournaled(path, options, batched, &decisions, &estimate);
+    RunJournaled(path, options, batched, 0, &decisions, &estimate);
     const std::string text = Restart(path, CaseOptions(), &recovered, &recovered_estimate);
     INFO(text);
     CHECK_THAT(text, Contains("restored the snapshot of the first"));
