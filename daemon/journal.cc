@@ -171,7 +171,7 @@ Status Journal::Open(const std::string& path, JournalSyncPolicy sync, JournalRec
   return Status::Ok();
 }
 
-Status Journal::Write(const std::vector<uint8_t>& bytes, int64_t records) {
+Status Journal::Write(const std::vector<uint8_t>& bytes, int64_t records, uint32_t crc) {
   if (Status s = WriteAll(fd_, bytes.data(), bytes.size()); !s.ok()) {
     // Cut a partial record off again, so that later appends stay readable.
     if (ftruncate(fd_, size_) != 0 || lseek(fd_, size_, SEEK_SET) < 0) {
@@ -181,7 +181,7 @@ Status Journal::Write(const std::vector<uint8_t>& bytes, int64_t records) {
   }
   size_ += static_cast<int64_t>(bytes.size());
   records_ += records;
-  crc_ = ContinueCrc32(crc_, bytes.data(), bytes.size());
+  crc_ = crc;
   return Status::Ok();
 }
 
@@ -194,19 +194,17 @@ Status Journal::Append(const std::vector<JournalRecord>& records,
   uint32_t crc = crc_;
   for (const JournalRecord& r : records) {
     const std::vector<uint8_t> encoded = EncodeJournalRecord(r);
-    if (crc_after != nullptr) {
-      crc = ContinueCrc32(crc, encoded.data(), encoded.size());
-      crc_after->push_back(crc);
-    }
+    crc = ContinueCrc32(crc, encoded.data(), encoded.size());
+    if (crc_after != nullptr) crc_after->push_back(crc);
     out.insert(out.end(), encoded.begin(), encoded.end());
     if (sync_ == JournalSyncPolicy::kAlways) {
-      if (Status s = Write(out, 1); !s.ok()) return s;
+      if (Status s = Write(out, 1, crc); !s.ok()) return s;
       if (fdatasync(fd_) != 0) return Errno(path_ + ": fdatasync");
       out.clear();
     }
   }
   if (!out.empty()) {
-    if (Status s = Write(out, static_cast<int64_t>(records.size())); !s.ok()) return s;
+    if (Status s = Write(out, static_cast<int64_t>(records.size()), crc); !s.ok()) return s;
   }
   if (sync_ == JournalSyncPolicy::kBatch && fdatasync(fd_) != 0)
     return Errno(path_ + ": fdatasync");

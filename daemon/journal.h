@@ -62,8 +62,9 @@ class Journal {
   uint32_t crc() const { return crc_; }
 
  private:
-  // Writes whole records (undoing a partial write), and counts them.
-  Status Write(const std::vector<uint8_t>& bytes, int64_t records);
+  // Writes whole records (undoing a partial write), counts them, and takes `crc` (the journal's
+  // CRC after them, computed by Append record by record) as its CRC.
+  Status Write(const std::vector<uint8_t>& bytes, int64_t records, uint32_t crc);
 
   int fd_ = -1;
   std::string path_;

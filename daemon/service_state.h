@@ -113,11 +113,11 @@ struct Service::State {
   std::atomic<bool> replaying{false};
   // Off while the inputs a snapshot covers are fed again: their steps are in the snapshot.
   bool run_steps = true;
-  std::string snapshot_path;  // "" = no snapshots
-  int64_t snapshot_at = 0;    // journal records the last snapshot covers
-  double steps_s_since_snapshot =
-      0.0;                     // worker: the steps' time since it (journal.snapshot_after_s)
+  std::string snapshot_path;   // "" = no snapshots
+  int64_t snapshot_at = 0;     // journal records the last snapshot covers
   int64_t snapshot_bytes = 0;  // the last snapshot body's size
+  // Worker: the steps' time since the last snapshot (journal.snapshot_after_s).
+  double steps_s_since_snapshot = 0.0;
 
   // Receiving thread: each sender's inputs back in its order, and the senders ignored.
   mutable std::mutex sequencer_mutex;
