@@ -1,11 +1,13 @@
 #ifndef IRRR_CORE_WARM_ENGINE_IMPL_H_
 #define IRRR_CORE_WARM_ENGINE_IMPL_H_
 
-// The warm engine's state and steps, shared by its three source files: core/warm_engine.cc
-// judges a cluster (the variance factor, the screen, Algorithm 1, the joint test and its splits);
-// core/warm_runs.cc splits a cluster into its runs and judges a failed one run by run;
-// core/warm_reversal.cc reverses good clusters that later evidence outvotes and recovers what
-// they made the tests refuse. Internal to core: include only from those three files.
+// The warm engine's state and steps, shared by its source files: core/warm_engine.cc judges a
+// cluster (the screen, Algorithm 1, the joint test and its splits); core/warm_scale.cc estimates
+// the tests' variance factor and calibrates a cluster's sample; core/warm_runs.cc splits a
+// cluster into its runs and judges a failed one run by run; core/warm_reversal.cc reverses good
+// clusters that later evidence outvotes and recovers what they made the tests refuse;
+// core/warm_arbiter.cc holds the arbiter and the odometry faults. Internal to core: include only
+// from those files.
 
 #include <algorithm>
 #include <functional>
