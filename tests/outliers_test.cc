@@ -11,6 +11,7 @@
 
 #include "core/graph_io.h"
 #include "core/pose.h"
+#include "tests/rotation_angle.h"
 #include "tests/synthetic_graph.h"
 
 namespace irrr {
@@ -22,11 +23,6 @@ using testing::NoisyOptions;
 // Compositions along a few hundred poses of a grid world or helix round off at 1e-12; a cycle
 // that the generator closes exactly closes to this.
 constexpr double kClosureTolerance = 1e-9;
-
-double TranslationNorm(const Pose2& pose) { return pose.translation().norm(); }
-double TranslationNorm(const Pose3& pose) { return pose.translation().norm(); }
-double RotationAngle(const Pose2& pose) { return std::abs(pose.yaw_rad()); }
-double RotationAngle(const Pose3& pose) { return LogSO3(pose.quaternion()).norm(); }
 
 template <class Pose>
 bool SamePose(const Pose& a, const Pose& b) {
@@ -154,7 +150,7 @@ void RequireChainedEstimates(const GraphFile<Pose>& file) {
     for (int v : graph.session(s).vertices) {
       const Pose difference =
           (first * dead_reckoning[v]).Inverse() * estimate_of_id.at(graph.vertex(v).id);
-      REQUIRE(TranslationNorm(difference) < kClosureTolerance);
+      REQUIRE(difference.translation().norm() < kClosureTolerance);
       REQUIRE(RotationAngle(difference) < kClosureTolerance);
     }
   }
@@ -176,7 +172,7 @@ TEMPLATE_TEST_CASE("Aliased wrong loops claim two distant poses are nearly the s
   REQUIRE(links.size() == 200);
   std::set<int> sessions_joined;
   for (const OutlierLink<TestType>& link : links) {
-    CHECK(TranslationNorm(link.measurement) <= options.aliased_translation_m);
+    CHECK(link.measurement.translation().norm() <= options.aliased_translation_m);
     CHECK(RotationAngle(link.measurement) <= options.aliased_rotation_rad + 1e-12);
     const int session_from = graph.vertex(link.from).session;
     const int session_to = graph.vertex(link.to).session;
@@ -214,7 +210,7 @@ TEMPLATE_TEST_CASE("Aliased wrong loops claim two distant poses are nearly the s
   options.aliased_rotation_rad = 0.05;
   REQUIRE(MakeOutliers(graph, options, &other).ok());
   for (const OutlierLink<TestType>& link : other) {
-    CHECK(TranslationNorm(link.measurement) <= 0.1);
+    CHECK(link.measurement.translation().norm() <= 0.1);
     CHECK(RotationAngle(link.measurement) <= 0.05 + 1e-12);
   }
   options.aliased_rotation_rad = -0.1;
@@ -241,7 +237,7 @@ TEMPLATE_TEST_CASE("Aliased groups agree with each other and with the dead recko
   for (size_t g = 0; g < links.size() / group; ++g) {
     const OutlierLink<TestType>* first = &links[g * group];
     // The claim between the two places is small.
-    CHECK(TranslationNorm(first->measurement) <= options.aliased_translation_m);
+    CHECK(first->measurement.translation().norm() <= options.aliased_translation_m);
     CHECK(RotationAngle(first->measurement) <= options.aliased_rotation_rad + 1e-12);
     for (int m = 0; m < group; ++m) {
       const OutlierLink<TestType>& link = first[m];
@@ -263,7 +259,7 @@ TEMPLATE_TEST_CASE("Aliased groups agree with each other and with the dead recko
         const TestType cycle = li.measurement * AlongOdometry(graph, li.to, lj.to) *
                                lj.measurement.Inverse() * AlongOdometry(graph, lj.from, li.from);
         INFO("group " << g << " links " << i << ", " << j);
-        CHECK(TranslationNorm(cycle) < kClosureTolerance);
+        CHECK(cycle.translation().norm() < kClosureTolerance);
         CHECK(RotationAngle(cycle) < kClosureTolerance);
       }
     }
@@ -374,8 +370,8 @@ TEMPLATE_TEST_CASE("Odometry faults replace a few odometry measurements by wrong
     CHECK(odometry[e]);
     // The extra motion: 1-3 m horizontally (3D: up to 0.3 m in z), 0.3-1.0 rad.
     const TestType extra = before.measurement.Inverse() * after.measurement;
-    CHECK(TranslationNorm(extra) >= 1.0 - 1e-9);
-    CHECK(TranslationNorm(extra) <= std::hypot(3.0, 0.3) + 1e-9);
+    CHECK(extra.translation().norm() >= 1.0 - 1e-9);
+    CHECK(extra.translation().norm() <= std::hypot(3.0, 0.3) + 1e-9);
     CHECK(RotationAngle(extra) >= 0.3 - 1e-9);
     CHECK(RotationAngle(extra) <= 1.0 + 1e-9);
     sessions_hit.insert(graph.vertex(graph.FindVertex(before.to)).session);

@@ -56,12 +56,6 @@ std::string XmlProblem(const std::string& xml) {
   return roots == 1 ? "" : "not one root element";
 }
 
-int Count(const std::string& text, const std::string& what) {
-  int n = 0;
-  for (size_t at = text.find(what); at != std::string::npos; at = text.find(what, at + 1)) ++n;
-  return n;
-}
-
 TEST_CASE("The well-formedness check itself tells good XML from bad", "[plots]") {
   CHECK(XmlProblem(R"(<svg a="1"><g><line x="2"/></g><text>a &amp; b</text></svg>)").empty());
   CHECK(!XmlProblem(R"(<svg><g></svg>)").empty());
@@ -112,13 +106,13 @@ TEMPLATE_TEST_CASE(
   const std::string svg = MapSvg(map);
   INFO(svg.substr(0, 2000));
   CHECK(XmlProblem(svg).empty());
-  CHECK(Count(svg, "class=\"session\"") == views * 3);
-  CHECK(Count(svg, "class=\"ground-truth\"") == views * 3);
-  CHECK(Count(svg, "class=\"loop accepted\"") == views * counts[0]);
-  CHECK(Count(svg, "class=\"loop rejected\"") == views * counts[1]);
-  CHECK(Count(svg, "class=\"loop reversed\"") == views * counts[2]);
-  CHECK(Count(svg, "class=\"loop pending\"") == 0);
-  CHECK(Count(svg, "class=\"legend\"") == 1);
+  CHECK(Occurrences(svg, "class=\"session\"") == views * 3);
+  CHECK(Occurrences(svg, "class=\"ground-truth\"") == views * 3);
+  CHECK(Occurrences(svg, "class=\"loop accepted\"") == views * counts[0]);
+  CHECK(Occurrences(svg, "class=\"loop rejected\"") == views * counts[1]);
+  CHECK(Occurrences(svg, "class=\"loop reversed\"") == views * counts[2]);
+  CHECK(Occurrences(svg, "class=\"loop pending\"") == 0);
+  CHECK(Occurrences(svg, "class=\"legend\"") == 1);
   CHECK_THAT(svg, Catch::Contains("accepted loops (" + std::to_string(counts[0]) + ")"));
   CHECK_THAT(svg, Catch::Contains("a &lt;map&gt; &amp; more"));
   if (views == 2) CHECK_THAT(svg, Catch::Contains("side view (x-z)"));
@@ -127,24 +121,25 @@ TEMPLATE_TEST_CASE(
       MakeMapPlot<TestType>("initial guess", graph, graph.initial_estimate(), {}, {});
   const std::string both = BeforeAfterSvg(before, map);
   CHECK(XmlProblem(both).empty());
-  CHECK(Count(both, "class=\"session\"") == 2 * 3);  // top views, before and after
-  CHECK(Count(both, "class=\"loop pending\"") == counts[0] + counts[1] + counts[2]);
-  CHECK(Count(both, "class=\"loop accepted\"") == counts[0]);
+  CHECK(Occurrences(both, "class=\"session\"") == 2 * 3);  // top views, before and after
+  CHECK(Occurrences(both, "class=\"loop pending\"") == counts[0] + counts[1] + counts[2]);
+  CHECK(Occurrences(both, "class=\"loop accepted\"") == counts[0]);
 
   const std::vector<double> step_ms = {1.5, 20.0, 3.0, 400.0};
   const std::string steps = StepTimeSvg("steps", step_ms);
   CHECK(XmlProblem(steps).empty());
-  CHECK(Count(steps, "class=\"step\"") == 4);
-  CHECK(Count(steps, "class=\"step-time\"") == 1);
+  CHECK(Occurrences(steps, "class=\"step\"") == 4);
+  CHECK(Occurrences(steps, "class=\"step-time\"") == 1);
 
   const std::vector<double> errors = {0.1, 0.2, 0.2, 0.9};
   const std::string ate = AteSvg("ate", errors);
   CHECK(XmlProblem(ate).empty());
-  CHECK(Count(ate, "class=\"bar\"") == 20);
+  CHECK(Occurrences(ate, "class=\"bar\"") == 20);
   CHECK_THAT(ate, Catch::Contains("max 0.900 m (4 poses)"));
 }
 
-TEST_CASE("irrr-batch --plot and irrr-plot write every plot kind of a decided file", "[plots]") {
+TEST_CASE("irrr-batch --plot and irrr-plot write every plot kind of a decided file",
+          "[plots][tools]") {
   const std::string dir = TestDirectory("plots");
   const std::string input = dir + "/intel200.g2o";
   WriteIntelPrefix(200, input);
@@ -161,8 +156,8 @@ TEST_CASE("irrr-batch --plot and irrr-plot write every plot kind of a decided fi
     CHECK(XmlProblem(svg).empty());
   }
   const std::string map = ReadText(dir + "/batch.svg");
-  CHECK(Count(map, "class=\"session\"") == 1);
-  CHECK(Count(map, "class=\"loop accepted\"") > 0);
+  CHECK(Occurrences(map, "class=\"session\"") == 1);
+  CHECK(Occurrences(map, "class=\"loop accepted\"") > 0);
 
   WriteText(dir + "/steps.csv", "step,ms\n0,1.5\n1,2.5\n2,30\n");
   const std::string plot = std::string(IRRR_PLOT) + " " + Quoted(input) + " --decisions " +
@@ -172,15 +167,17 @@ TEST_CASE("irrr-batch --plot and irrr-plot write every plot kind of a decided fi
   REQUIRE(RunTool(plot, dir + "/plot.log") == 0);
   // Same decisions, same map: the same loop lines as irrr-batch drew.
   const std::string again = ReadText(dir + "/plot.svg");
-  CHECK(Count(again, "class=\"loop accepted\"") == Count(map, "class=\"loop accepted\""));
-  CHECK(Count(again, "class=\"loop rejected\"") == Count(map, "class=\"loop rejected\""));
-  CHECK(Count(ReadText(dir + "/plot_steps.svg"), "class=\"step\"") == 3);
+  CHECK(Occurrences(again, "class=\"loop accepted\"") ==
+        Occurrences(map, "class=\"loop accepted\""));
+  CHECK(Occurrences(again, "class=\"loop rejected\"") ==
+        Occurrences(map, "class=\"loop rejected\""));
+  CHECK(Occurrences(ReadText(dir + "/plot_steps.svg"), "class=\"step\"") == 3);
   CHECK(RunTool(std::string(IRRR_PLOT) + " " + Quoted(input) + " --steps " +
                     Quoted(dir + "/none.csv") + " --out " + Quoted(dir + "/x.svg"),
                 dir + "/bad.log") == 65);
 }
 
-TEST_CASE("irrr-plot --chart draws each --y column of a CSV against --x", "[plots]") {
+TEST_CASE("irrr-plot --chart draws each --y column of a CSV against --x", "[plots][tools]") {
   const std::string dir = TestDirectory("plots_chart");
   WriteText(dir + "/samples.csv",
             "seconds,poses,rss_mb,cpu_s\n1,0,12,0.1\n2,500,20,0.9\n3,1000,-2,2\n");
@@ -190,8 +187,8 @@ TEST_CASE("irrr-plot --chart draws each --y column of a CSV against --x", "[plot
   REQUIRE(RunTool(chart, dir + "/chart.log") == 0);
   const std::string svg = ReadText(dir + "/chart.svg");
   CHECK(XmlProblem(svg).empty());
-  CHECK(Count(svg, "class=\"point\"") == 6);   // 3 rows x 2 columns
-  CHECK(Count(svg, "class=\"legend\"") == 4);  // a name and a dot per column
+  CHECK(Occurrences(svg, "class=\"point\"") == 6);   // 3 rows x 2 columns
+  CHECK(Occurrences(svg, "class=\"legend\"") == 4);  // a name and a dot per column
   CHECK_THAT(svg, Catch::Contains(">rss_mb<") && Catch::Contains(">cpu_s<"));
   // The negative value lowers the axis: its label reads -2.
   CHECK_THAT(svg, Catch::Contains(">-2<"));

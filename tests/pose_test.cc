@@ -7,6 +7,8 @@
 
 #include <catch2/catch.hpp>
 
+#include "tests/rotation_angle.h"
+
 namespace irrr {
 namespace {
 
@@ -80,12 +82,6 @@ Pose3::Tangent MakeTangent<Pose3>(const Eigen::Vector3d& rho, const Eigen::Vecto
 Pose2 TangentPose(const Pose2::Tangent& delta) { return Pose2(delta(0), delta(1), delta(2)); }
 Pose3 TangentPose(const Pose3::Tangent& delta) {
   return Pose3(ExpSO3(delta.tail<3>()), delta.head<3>());
-}
-
-// Rotation angle in [0, pi].
-double RotationAngle(const Pose2& pose) { return std::abs(pose.yaw_rad()); }
-double RotationAngle(const Pose3& pose) {
-  return 2.0 * std::atan2(pose.quaternion().vec().norm(), std::abs(pose.quaternion().w()));
 }
 
 // Rotation axes to try: SE(2) has only z; SE(3) the coordinate axes and an oblique one.

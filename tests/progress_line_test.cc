@@ -31,12 +31,6 @@ std::string Written(std::FILE* file) {
   return text;
 }
 
-int Count(const std::string& text, const std::string& what) {
-  int n = 0;
-  for (size_t at = text.find(what); at != std::string::npos; at = text.find(what, at + 1)) ++n;
-  return n;
-}
-
 TEST_CASE("A progress line off a terminal writes nothing at all", "[progress]") {
   std::FILE* file = std::tmpfile();
   REQUIRE(file != nullptr);
@@ -69,7 +63,7 @@ TEST_CASE("On a terminal the line is redrawn in place at most every 100 ms, then
   }  // the destructor erases the line
   const std::string text = Written(file);
   CHECK(text == "\rfirst\033[K\rforced\033[K\rlater\033[K\r\033[K");
-  CHECK(Count(text, "skipped") == 0);
+  CHECK(Occurrences(text, "skipped") == 0);
   std::fclose(file);
 }
 

@@ -46,6 +46,13 @@ inline int RunTool(const std::string& command, const std::string& log) {
   return WEXITSTATUS(status);
 }
 
+// How many times `what` occurs in `text` (overlaps counted).
+inline int Occurrences(const std::string& text, const std::string& what) {
+  int n = 0;
+  for (size_t at = text.find(what); at != std::string::npos; at = text.find(what, at + 1)) ++n;
+  return n;
+}
+
 inline std::string Quoted(const std::string& path) { return "'" + path + "'"; }
 
 // The first `num_poses` poses of the shipped Intel file and the edges among them.

@@ -22,12 +22,6 @@ namespace {
 
 using Catch::Matchers::Contains;
 
-int Count(const std::string& text, const std::string& what) {
-  int n = 0;
-  for (size_t at = text.find(what); at != std::string::npos; at = text.find(what, at + 1)) ++n;
-  return n;
-}
-
 // The map the page drew: its <svg id="map"> element.
 std::string DrawnMap(const std::string& page) {
   const size_t begin = page.find("<svg id=\"map\"");
@@ -115,25 +109,25 @@ TEST_CASE("udpm: the live map appears in headless Chromium, then updates as corr
   const std::string map1 = DrawnMap(page1);
   INFO(page1.substr(0, 3000));
   CHECK_THAT(page1, Contains("data-updates=\"1\""));
-  CHECK(Count(map1, "class=\"session\"") == 1);
-  CHECK(Count(map1, "class=\"loop accepted\"") > 50);
+  CHECK(Occurrences(map1, "class=\"session\"") == 1);
+  CHECK(Occurrences(map1, "class=\"loop accepted\"") > 50);
   CHECK_THAT(page1, Contains("1 session(s)"));
 
   // It updates: the event stream a page holds (open before robot 1 starts) brings robot 1's
   // session and its loops. The view sends one map per burst of messages, so the first map may
   // already hold them.
-  const int accepted1 = Count(map1, "class=\"loop accepted\"");
+  const int accepted1 = Occurrences(map1, "class=\"loop accepted\"");
   const auto both_robots = [accepted1](const nlohmann::json& map) {
     return map["sessions"].size() == 2 && map["counts"]["accepted"] > accepted1;
   };
   std::vector<nlohmann::json> events;
   std::thread stream([&] { events = ReadEvents(18765, both_robots, 60); });
   const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(30);
-  while (Count(ReadText(dir + "/view.log"), "a page connected") < 2 &&
+  while (Occurrences(ReadText(dir + "/view.log"), "a page connected") < 2 &&
          std::chrono::steady_clock::now() < deadline) {
     std::this_thread::sleep_for(std::chrono::milliseconds(50));
   }
-  const bool connected = Count(ReadText(dir + "/view.log"), "a page connected") == 2;
+  const bool connected = Occurrences(ReadText(dir + "/view.log"), "a page connected") == 2;
   const int injected = connected
                            ? RunTool(inject + Quoted(second) + " --first-robot 1 --sender second",
                                      dir + "/inject2.log")
@@ -151,8 +145,8 @@ TEST_CASE("udpm: the live map appears in headless Chromium, then updates as corr
   const std::string page2 = ReadText(dir + "/page2.html");
   const std::string map2 = DrawnMap(page2);
   INFO(page2.substr(0, 3000));
-  CHECK(Count(map2, "class=\"session\"") == 2);
-  CHECK(Count(map2, "class=\"loop accepted\"") > accepted1);
+  CHECK(Occurrences(map2, "class=\"session\"") == 2);
+  CHECK(Occurrences(map2, "class=\"loop accepted\"") > accepted1);
   CHECK_THAT(page2, Contains("2 session(s)"));
   CHECK(view.Stop(SIGINT) == 0);
   CHECK(daemon->Stop() == 0);
