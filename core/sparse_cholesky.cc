@@ -6,9 +6,6 @@
 #include <mutex>
 #include <vector>
 
-// libgomp's, declared here so that no compiler's omp.h is needed (CHOLMOD links libgomp).
-extern "C" void omp_set_max_active_levels(int max_levels);
-
 namespace irrr {
 namespace {
 
@@ -20,20 +17,6 @@ namespace {
 std::mutex& BlasMutex() {
   static std::mutex mutex;
   return mutex;
-}
-
-// CHOLMOD's supernodal factorization opens OpenMP parallel regions of a fixed thread count (its
-// compile-time CHOLMOD_OMP_NUM_THREADS, which OMP_NUM_THREADS does not override). On pose graphs
-// their start and wake-ups cost more than they save: a 3D iRRR run spent 40% of its time in them
-// and took 2.3 times as long. Parallelism belongs to the caller (independent solves on its pool),
-// so each calling thread runs CHOLMOD's regions with one thread: a thread's max-active-levels of
-// 0 makes every region it opens inactive. The setting is per thread in libgomp.
-void SerialOpenMpRegions() {
-  thread_local bool done = false;
-  if (!done) {
-    omp_set_max_active_levels(0);
-    done = true;
-  }
 }
 
 // Holds the lock while `factor` is supernodal.
@@ -226,7 +209,6 @@ LinearSolverStatus SparseCholesky::Factorize(std::string* message) {
     if (message != nullptr) *message = "CHOLMOD: no matrix (allocation failed or no pattern set)";
     return LinearSolverStatus::kFailure;
   }
-  SerialOpenMpRegions();
   if (impl_->symbolic == nullptr) {
     impl_->symbolic = cholmod_analyze(impl_->matrix, &impl_->common);
     if (impl_->symbolic == nullptr) {

@@ -1,6 +1,10 @@
 #include "core/sparse_cholesky.h"
 
+#include <dlfcn.h>
+
+#include <mutex>
 #include <random>
+#include <thread>
 
 #include <Eigen/Dense>
 #include <catch2/catch.hpp>
@@ -163,6 +167,36 @@ TEST_CASE("An indefinite matrix is reported as not positive definite", "[sparse_
   CHECK_THAT(message, Catch::Contains("not positive definite"));
   Eigen::VectorXd x;
   CHECK_FALSE(cholesky.Solve(Eigen::VectorXd::Ones(2), &x));
+}
+
+}  // namespace
+}  // namespace irrr
+
+namespace irrr {
+namespace {
+
+// What libcholmod's call to GOMP_parallel finds: the dynamic linker's first definition, which is
+// the program's (core/serial_openmp.cc) when the program exports it. libgomp's would start a team
+// of the four threads asked for.
+TEST_CASE("CHOLMOD's OpenMP regions run once, in the thread that opens them", "[sparse_cholesky]") {
+  using RegionEntry = void (*)(void (*)(void*), void*, unsigned, unsigned);
+  const auto entry = reinterpret_cast<RegionEntry>(dlsym(RTLD_DEFAULT, "GOMP_parallel"));
+  REQUIRE(entry != nullptr);
+  struct Seen {
+    std::mutex mutex;
+    std::vector<std::thread::id> threads;
+  } seen;
+  entry(
+      [](void* data) {
+        auto* s = static_cast<Seen*>(data);
+        std::lock_guard<std::mutex> lock(s->mutex);
+        s->threads.push_back(std::this_thread::get_id());
+      },
+      &seen,
+      4,
+      0);
+  REQUIRE(seen.threads.size() == 1);
+  CHECK(seen.threads.front() == std::this_thread::get_id());
 }
 
 }  // namespace
