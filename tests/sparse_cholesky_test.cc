@@ -169,12 +169,6 @@ TEST_CASE("An indefinite matrix is reported as not positive definite", "[sparse_
   CHECK_FALSE(cholesky.Solve(Eigen::VectorXd::Ones(2), &x));
 }
 
-}  // namespace
-}  // namespace irrr
-
-namespace irrr {
-namespace {
-
 // What libcholmod's call to GOMP_parallel finds: the dynamic linker's first definition, which is
 // the program's (core/serial_openmp.cc) when the program exports it. libgomp's would start a team
 // of the four threads asked for.
