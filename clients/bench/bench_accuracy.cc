@@ -21,7 +21,6 @@
 #include <unistd.h>
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <ctime>
 #include <fstream>
@@ -36,333 +35,25 @@
 #include <fmt/core.h>
 #include <CLI/CLI.hpp>
 
-#include "clients/bench/child_process.h"
+#include "clients/bench/accuracy_cases.h"
+#include "clients/bench/method_runs.h"
 #include "clients/bench/order_runs.h"
 #include "clients/bench/reference_files.h"
 #include "clients/common/graph_files.h"
-#include "clients/common/progress_line.h"
 #include "core/irrr.h"
 #include "core/optimizer.h"
 #include "core/outliers.h"
-#include "core/robust_solve.h"
 #include "core/trajectory_metrics.h"
 #include "daemon/common/allocator.h"
 
 namespace irrr {
 namespace {
 
-enum class CaseKind {
-  kSynthetic,  // a clean graph (every loop true) plus generated outliers
-  kLabelled,   // a place-recognition graph with a file of its true loops ("i j" per line)
-  kUnlabelled  // a place-recognition graph without labels, ATE against GPS
-};
-
-enum class ReferenceKind {
-  kPoseLines,     // one "x y yaw" line per vertex (Vertigo *_nodes_groundTruth.dat)
-  kGraphFile,     // a pose-graph file (edges-only files chained along their odometry)
-  kIsamEdges,     // iSAM EDGE2/EDGE3 noise-free edges: chain the sequential ones
-  kOracle,        // no ground truth: the oracle's optimum is the reference
-  kTimestampGps,  // Bicocca: vertex k <-> timestamps line k, nearest GPS row in time
-  kStridedGps,    // Bovisa: the GPS graph's vertex k <-> graph vertex id kGpsStride * k
-};
-
-struct Case {
-  std::string name;
-  CaseKind kind = CaseKind::kSynthetic;
-  std::string graph;  // paths relative to the shared folder
-  ReferenceKind reference = ReferenceKind::kOracle;
-  std::string reference_path;
-  std::string labels;      // kLabelled: true loops
-  std::string timestamps;  // kTimestampGps: one time per graph vertex
-  OutlierMode mode = OutlierMode::kRandom;
-  int outliers = 0;
-  bool wrong_only = false;  // kLabelled: the true loops removed (a correct answer accepts none)
-  // kSynthetic failure families beyond wrong loops (core/outliers.h): odometry re-drawn with
-  // `odometry_noise` times the noise its information states (0: as given), and odometry faults.
-  double odometry_noise = 0.0;
-  int odometry_faults = 0;
-};
-
-std::vector<Case> AllCases() {
-  struct Clean {
-    std::string name;
-    std::string graph;
-    ReferenceKind reference;
-    std::string reference_path;
-  };
-  const std::vector<Clean> clean = {
-      {"manhattan",
-       "datasets/manhattan/vertigo/Olson/manhattanOlson3500.g2o",
-       ReferenceKind::kPoseLines,
-       "datasets/manhattan/vertigo/groundTruth/manhattanOlson3500_nodes_groundTruth.dat"},
-      {"intel", "datasets/intel/vertigo/intel.g2o", ReferenceKind::kOracle, ""},
-      {"city10000",
-       "datasets/city10000/vertigo/city10000.g2o",
-       ReferenceKind::kIsamEdges,
-       "datasets/city10000/isam/groundtruth/city10000_groundtruth.txt"},
-      {"sphere2500",
-       "datasets/sphere2500/vertigo/sphere2500.g2o",
-       ReferenceKind::kIsamEdges,
-       "datasets/sphere2500/isam/groundtruth/sphere2500_groundtruth.txt"},
-  };
-  const OutlierMode modes[] = {OutlierMode::kRandom,
-                               OutlierMode::kLocal,
-                               OutlierMode::kRandomGrouped,
-                               OutlierMode::kLocalGrouped};
-  std::vector<Case> cases;
-  for (const Clean& c : clean) {
-    for (int count : {100, 1000}) {
-      for (OutlierMode mode : modes) {
-        Case k;
-        k.name = fmt::format("{}-{}-{}", c.name, OutlierModeName(mode), count);
-        k.kind = CaseKind::kSynthetic;
-        k.graph = c.graph;
-        k.reference = c.reference;
-        k.reference_path = c.reference_path;
-        k.mode = mode;
-        k.outliers = count;
-        cases.push_back(k);
-      }
-    }
-  }
-  // The failure families a real place recognizer and odometry make (perceptual aliasing, odometry
-  // noisier than its information, odometry faults), on the clean datasets above and on M3500b
-  // (Manhattan with much noisier headings), the parking garage and Torus3D.
-  std::vector<Clean> families = clean;
-  families.insert(
-      families.begin() + 1,
-      {"m3500b", "datasets/manhattan/carlone/input_M3500b_g2o.g2o", ReferenceKind::kOracle, ""});
-  families.push_back({"garage", "datasets/garage/parking-garage.g2o", ReferenceKind::kOracle, ""});
-  families.push_back({"torus3d", "datasets/torus3d/torus3D.g2o", ReferenceKind::kOracle, ""});
-  struct Family {
-    std::string name;
-    OutlierMode mode;
-    int outliers;
-    double odometry_noise;
-    int odometry_faults;
-  };
-  const std::vector<Family> family_rows = {
-      {"aliased-300", OutlierMode::kAliased, 300, 0.0, 0},
-      {"aliased-1000", OutlierMode::kAliased, 1000, 0.0, 0},
-      {"aliased-grouped-300", OutlierMode::kAliasedGrouped, 300, 0.0, 0},
-      {"aliased-grouped-1000", OutlierMode::kAliasedGrouped, 1000, 0.0, 0},
-      {"noisy2-random-grouped-1000", OutlierMode::kRandomGrouped, 1000, 2.0, 0},
-      {"noisy3-random-grouped-1000", OutlierMode::kRandomGrouped, 1000, 3.0, 0},
-      {"faults5-random-100", OutlierMode::kRandom, 100, 0.0, 5},
-  };
-  for (const Clean& c : families) {
-    for (const Family& f : family_rows) {
-      Case k;
-      k.name = fmt::format("{}-{}", c.name, f.name);
-      k.kind = CaseKind::kSynthetic;
-      k.graph = c.graph;
-      k.reference = c.reference;
-      k.reference_path = c.reference_path;
-      k.mode = f.mode;
-      k.outliers = f.outliers;
-      k.odometry_noise = f.odometry_noise;
-      k.odometry_faults = f.odometry_faults;
-      cases.push_back(k);
-    }
-  }
-  const char* alphas[] = {"0.00", "0.25", "0.50", "0.75", "1.00"};
-  // KITTI 00 and 05; and from 00 a real sequence whose hypotheses are all wrong (its labelled
-  // true loops removed).
-  std::vector<Case> wrong_only;
-  for (const char* sequence : {"00", "05"}) {
-    for (const char* alpha : alphas) {
-      const std::string folder = fmt::format("datasets/kitti_rrr/{}/kitti_{}", sequence, sequence);
-      Case k;
-      k.name = fmt::format("kitti{}-alpha-{}", sequence, alpha);
-      k.kind = CaseKind::kLabelled;
-      k.graph = fmt::format("{}_alpha_{}.g2o", folder, alpha);
-      k.labels = fmt::format("{}_alpha_{}_GT_LC.txt", folder, alpha);
-      k.reference = ReferenceKind::kGraphFile;
-      k.reference_path = folder + "_GT.g2o";
-      cases.push_back(k);
-      if (std::string(sequence) == "00") {
-        k.name = fmt::format("kitti00-wrong-only-alpha-{}", alpha);
-        k.wrong_only = true;
-        wrong_only.push_back(k);
-      }
-    }
-  }
-  cases.insert(cases.end(), wrong_only.begin(), wrong_only.end());
-  for (const char* alpha : {"0.000", "0.250", "0.500", "0.750", "1.000"}) {
-    Case k;
-    k.name = fmt::format("bicocca25b-alpha-{}", alpha);
-    k.kind = CaseKind::kUnlabelled;
-    k.graph = fmt::format("datasets/rrr_bicocca25b/B25b_{}.g2o", alpha);
-    k.reference = ReferenceKind::kTimestampGps;
-    k.reference_path = "datasets/rrr_bicocca25b/timestamps/Bicocca_2009-02-25b-GT-extended.csv";
-    k.timestamps = "datasets/rrr_bicocca25b/timestamps/B25b_timestamps.txt";
-    cases.push_back(k);
-  }
-  // Bovisa (RAWSEEDS, the RRR author's bag-of-words loops): never tuned on. Its GPS files hold
-  // one fix per 10 odometry poses: their step lengths match the odometry's 10-pose steps (1718 m
-  // against 1714 m over Bovisa 04, 1893 against 1882 over 06).
-  for (const char* session : {"04", "06"}) {
-    Case k;
-    k.name = fmt::format("bovisa{}", session);
-    k.kind = CaseKind::kUnlabelled;
-    k.graph = fmt::format("datasets/rrr_bovisa/Bovisa{}_odometry_bow_tr.g2o", session);
-    k.reference = ReferenceKind::kStridedGps;
-    k.reference_path = fmt::format("datasets/rrr_bovisa/Bovisa{}_GT_GPS.g2o", session);
-    cases.push_back(k);
-  }
-  return cases;
-}
-
-// One algorithm configuration of the matrix.
-enum class Algorithm {
-  kIrrr,  // iRRR, Irrr driven step by step in arrival order
-  kRrr,   // batch RRR (RunBatchRrr)
-  kDcs,   // dynamic covariance scaling (core/robust_solve.h)
-  kGnc,   // graduated non-convexity, truncated least squares (core/robust_solve.h)
-};
-
-struct Method {
-  Algorithm algorithm = Algorithm::kIrrr;
-  GraphDegreesOfFreedom dof = GraphDegreesOfFreedom::kResidualRows;
-  bool paper_faithful = false;
-  double alpha = 0.0;             // > 0: overrides the preset's
-  double variance_factor = -1.0;  // >= 0: overrides the default (0: estimated)
-  int step_budget = -1;           // >= 0: overrides the default (0: unbounded)
-
-  bool IsRobustKernel() const {
-    return algorithm == Algorithm::kDcs || algorithm == Algorithm::kGnc;
-  }
-};
-
-std::string MethodName(const Method& m) {
-  switch (m.algorithm) {
-    case Algorithm::kIrrr:
-      return "irrr";
-    case Algorithm::kRrr:
-      return "rrr";
-    case Algorithm::kDcs:
-      return "dcs";
-    case Algorithm::kGnc:
-      return "gnc";
-  }
-  return "unknown";
-}
-std::string DofName(GraphDegreesOfFreedom dof) {
-  return dof == GraphDegreesOfFreedom::kResidualRows ? "residual_rows" : "exact";
-}
-std::string DofName(const Method& m) { return m.IsRobustKernel() ? "-" : DofName(m.dof); }
-std::string VariantName(const Method& m) {
-  if (m.IsRobustKernel()) return "-";
-  return m.paper_faithful ? "paper" : "default";
-}
-
-IrrrOptions OptionsFor(const Method& m) {
-  IrrrOptions options = m.paper_faithful ? IrrrOptions::PaperFaithful() : IrrrOptions();
-  options.graph_dof = m.dof;
-  if (m.alpha > 0.0) options.alpha = m.alpha;
-  if (m.variance_factor >= 0.0) options.variance_factor = m.variance_factor;
-  if (m.step_budget >= 0) options.step_budget = m.step_budget;
-  return options;
-}
-
-double SecondsSince(std::chrono::steady_clock::time_point start) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-}
-
-double ProcessCpuSeconds() {
-  timespec now{};
-  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &now);
-  return static_cast<double>(now.tv_sec) + 1e-9 * static_cast<double>(now.tv_nsec);
-}
-
 // Nearest-rank percentile of sorted values.
 double Percentile(const std::vector<double>& sorted, double p) {
   if (sorted.empty()) return 0.0;
   const auto rank = static_cast<size_t>(std::ceil(p * static_cast<double>(sorted.size())));
   return sorted[std::min(sorted.size() - 1, rank == 0 ? 0 : rank - 1)];
-}
-
-struct RunResult {
-  std::vector<LoopDecision> decisions;
-  double seconds = 0.0;
-  double cpu_seconds = 0.0;  // of this process: tells a loaded machine from a slow algorithm
-  int steps = -1;            // -1: batch
-  int solves = 0;
-  int capped_steps = 0;  // steps that reached IrrrOptions::step_budget
-  std::vector<double> step_ms;
-  std::vector<int> odometry_faults;
-};
-
-// What one method's run leaves for the table: it runs in a child process (RunInChild), so that
-// its peak memory is its own.
-template <class Pose>
-struct MethodRun {
-  std::vector<char> accepted;        // per graph edge
-  std::vector<int> odometry_faults;  // iRRR: the odometry edges it flags (Irrr::OdometryFaults)
-  std::vector<Pose> estimate;        // per vertex
-  double seconds = 0.0;
-  double cpu_seconds = 0.0;
-  int steps = -1;  // -1: not incremental
-  int solves = 0;
-  int capped_steps = 0;  // steps that reached IrrrOptions::step_budget
-  std::vector<double> step_ms;
-  long peak_rss_kb = 0;  // the child's maximum resident set size
-  bool stopped = false;  // ran past Settings::method_seconds and was stopped: no result
-};
-
-// What RunIncrementalIrrr does, with every RunStep timed. Long runs report their progress on
-// stderr: a progress line on a terminal, otherwise a line every kProgressSeconds.
-template <class Pose>
-RunResult RunIncrementalTimed(const std::string& label,
-                              const PoseGraph<Pose>& graph,
-                              const IrrrOptions& options,
-                              std::vector<Pose>* estimate) {
-  constexpr double kProgressSeconds = 30.0;
-  RunResult result;
-  const auto start = std::chrono::steady_clock::now();
-  double next_progress_s = kProgressSeconds;
-  int poses_in = 0;
-  Irrr<Pose> irrr(options);
-  ProgressLine line;
-  ReplayProgress<Pose> progress(graph, "  " + label, &line);
-  auto run_steps = [&]() {
-    while (irrr.HasPendingStep()) {
-      const auto step_start = std::chrono::steady_clock::now();
-      const StepResult step = irrr.RunStep();
-      result.step_ms.push_back(1e3 * SecondsSince(step_start));
-      result.solves += step.solves;
-      result.capped_steps += step.capped ? 1 : 0;
-      if (line.enabled()) {
-        progress.Show(irrr);
-      } else if (const double elapsed_s = SecondsSince(start); elapsed_s >= next_progress_s) {
-        fmt::print(stderr,
-                   "  {}: {:.0f} s, {} steps, pose {}/{}\n",
-                   label,
-                   elapsed_s,
-                   irrr.num_steps(),
-                   poses_in,
-                   graph.num_vertices());
-        next_progress_s = elapsed_s + kProgressSeconds;
-      }
-    }
-  };
-  GraphReplay<Pose> replay(graph, &irrr);
-  for (const ArrivalEvent& event : ArrivalOrder(graph)) {
-    poses_in += event.kind == ArrivalEvent::Kind::kPose ? 1 : 0;
-    replay.Apply(event);
-    progress.Fed(event);
-    progress.Show(irrr);
-    run_steps();
-  }
-  irrr.Flush();
-  run_steps();
-  line.Clear();
-  result.seconds = SecondsSince(start);
-  result.steps = irrr.num_steps();
-  result.decisions = replay.Decisions();
-  result.odometry_faults = replay.OdometryFaults();
-  *estimate = replay.Estimate();
-  return result;
 }
 
 // ATE with one alignment per connected component of odometry + the loops in `loops`, over the
@@ -474,153 +165,6 @@ Status RemoveLoops(const std::vector<char>& remove, PoseGraph<Pose>* graph) {
     }
   }
   *graph = std::move(out);
-  return Status::Ok();
-}
-
-// The method's decisions and map on `graph`, timed.
-template <class Pose>
-Status RunMethod(const Case& c,
-                 const Method& method,
-                 const PoseGraph<Pose>& graph,
-                 MethodRun<Pose>* run) {
-  const double cpu_start_s = ProcessCpuSeconds();
-  const auto start = std::chrono::steady_clock::now();
-  run->accepted.assign(graph.num_edges(), 0);
-  if (method.IsRobustKernel()) {
-    RobustOptions options;
-    options.kernel =
-        method.algorithm == Algorithm::kDcs ? RobustKernel::kDcs : RobustKernel::kGncTls;
-    RobustResult<Pose> result;
-    if (Status s = RobustSolve(graph, options, graph.initial_estimate(), &result); !s.ok()) {
-      return s;
-    }
-    for (int e = 0; e < graph.num_edges(); ++e) {
-      run->accepted[e] = graph.edge(e).kind == EdgeKind::kLoop && result.Accepted(e);
-    }
-    run->estimate = std::move(result.estimate);
-    run->solves = result.solver_iterations;
-    run->seconds = SecondsSince(start);
-  } else {
-    std::vector<LoopDecision> decisions;
-    if (method.algorithm == Algorithm::kIrrr) {
-      RunResult result = RunIncrementalTimed(c.name, graph, OptionsFor(method), &run->estimate);
-      decisions = std::move(result.decisions);
-      run->seconds = result.seconds;
-      run->steps = result.steps;
-      run->solves = result.solves;
-      run->capped_steps = result.capped_steps;
-      run->step_ms = std::move(result.step_ms);
-      run->odometry_faults = std::move(result.odometry_faults);
-    } else {
-      decisions = RunBatchRrr(graph, OptionsFor(method), &run->estimate);
-      run->seconds = SecondsSince(start);
-    }
-    for (int e = 0; e < graph.num_edges(); ++e) {
-      run->accepted[e] =
-          graph.edge(e).kind == EdgeKind::kLoop && decisions[e].state == LoopState::kAccepted;
-    }
-  }
-  run->cpu_seconds = ProcessCpuSeconds() - cpu_start_s;
-  return Status::Ok();
-}
-
-// A MethodRun as numbers through a pipe, and back.
-template <class Pose>
-std::vector<double> Serialize(const MethodRun<Pose>& run) {
-  std::vector<double> out = {run.seconds,
-                             run.cpu_seconds,
-                             static_cast<double>(run.steps),
-                             static_cast<double>(run.solves),
-                             static_cast<double>(run.step_ms.size()),
-                             static_cast<double>(run.accepted.size()),
-                             static_cast<double>(run.estimate.size()),
-                             static_cast<double>(run.odometry_faults.size()),
-                             static_cast<double>(run.capped_steps)};
-  out.insert(out.end(), run.step_ms.begin(), run.step_ms.end());
-  for (char a : run.accepted) out.push_back(a);
-  out.insert(out.end(), run.odometry_faults.begin(), run.odometry_faults.end());
-  for (const Pose& pose : run.estimate) {
-    if constexpr (Pose::kDim == 3) {
-      out.insert(out.end(), {pose.translation().x(), pose.translation().y(), pose.yaw_rad()});
-    } else {
-      const Eigen::Quaterniond& q = pose.quaternion();
-      out.insert(out.end(),
-                 {q.w(),
-                  q.x(),
-                  q.y(),
-                  q.z(),
-                  pose.translation().x(),
-                  pose.translation().y(),
-                  pose.translation().z()});
-    }
-  }
-  return out;
-}
-
-template <class Pose>
-bool Deserialize(const std::vector<double>& in, MethodRun<Pose>* run) {
-  constexpr size_t kHeader = 9;
-  constexpr size_t kPoseNumbers = Pose::kDim == 3 ? 3 : 7;
-  if (in.size() < kHeader) return false;
-  const auto num_steps = static_cast<size_t>(in[4]);
-  const auto num_edges = static_cast<size_t>(in[5]);
-  const auto num_poses = static_cast<size_t>(in[6]);
-  const auto num_faults = static_cast<size_t>(in[7]);
-  if (in.size() != kHeader + num_steps + num_edges + num_faults + kPoseNumbers * num_poses) {
-    return false;
-  }
-  run->seconds = in[0];
-  run->cpu_seconds = in[1];
-  run->steps = static_cast<int>(in[2]);
-  run->solves = static_cast<int>(in[3]);
-  run->capped_steps = static_cast<int>(in[8]);
-  auto next = in.begin() + kHeader;
-  run->step_ms.assign(next, next + num_steps);
-  next += num_steps;
-  run->accepted.assign(num_edges, 0);
-  for (size_t e = 0; e < num_edges; ++e) run->accepted[e] = *next++ != 0.0 ? 1 : 0;
-  run->odometry_faults.assign(next, next + num_faults);
-  next += num_faults;
-  run->estimate.resize(num_poses);
-  for (size_t v = 0; v < num_poses; ++v, next += kPoseNumbers) {
-    if constexpr (Pose::kDim == 3) {
-      run->estimate[v] = Pose(next[0], next[1], next[2]);
-    } else {
-      run->estimate[v] = Pose(Eigen::Quaterniond(next[0], next[1], next[2], next[3]),
-                              Eigen::Vector3d(next[4], next[5], next[6]));
-    }
-  }
-  return true;
-}
-
-// Runs the method in a child process (child_process.h) and reads its result back, with the
-// child's peak resident memory (what this process had loaded before the fork included). With
-// `limit_seconds` > 0, a run still going after that long is stopped and marked so.
-template <class Pose>
-Status RunInChild(const Case& c,
-                  const Method& method,
-                  const PoseGraph<Pose>& graph,
-                  double limit_seconds,
-                  MethodRun<Pose>* run) {
-  auto work = [&](std::vector<double>* numbers) {
-    MethodRun<Pose> result;
-    const Status s = RunMethod(c, method, graph, &result);
-    if (!s.ok()) {
-      fmt::print(stderr, "{}: {}: {}\n", c.name, MethodName(method), s.message());
-      return false;
-    }
-    *numbers = Serialize(result);
-    return true;
-  };
-  ChildResult child;
-  if (Status s = RunInChildProcess(work, limit_seconds, &child); !s.ok()) return s;
-  if (child.stopped) {
-    run->stopped = true;
-    run->seconds = limit_seconds;
-    return Status::Ok();
-  }
-  if (!Deserialize(child.numbers, run)) return Status::Error("the run's result did not read back");
-  run->peak_rss_kb = child.peak_rss_kb;
   return Status::Ok();
 }
 
@@ -812,8 +356,7 @@ Status RunCase(const Case& c,
   // `graph`'s edges and vertices (the robust kernels weigh every edge at once: no order).
   ReversedGraph<Pose> reversed;
   if (settings.order != RunOrder::kForward) reversed = TimeReversed(graph);
-  Case backwards = c;
-  backwards.name += " reversed";
+  const std::string backwards = c.name + " reversed";
   auto run_reversed = [&](const Method& method, MethodRun<Pose>* run) {
     Status s = RunInChild(backwards, method, reversed.graph, settings.method_seconds, run);
     if (s.ok() && !run->stopped) {
@@ -838,7 +381,7 @@ Status RunCase(const Case& c,
                reverse ? " reversed" : "");
     MethodRun<Pose> run;
     if (Status s = reverse ? run_reversed(method, &run)
-                           : RunInChild(c, method, graph, settings.method_seconds, &run);
+                           : RunInChild(c.name, method, graph, settings.method_seconds, &run);
         !s.ok()) {
       return Status::Error(MethodName(method) + ": " + s.message());
     }
