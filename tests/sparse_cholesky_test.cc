@@ -193,5 +193,14 @@ TEST_CASE("CHOLMOD's OpenMP regions run once, in the thread that opens them", "[
   CHECK(seen.threads.front() == std::this_thread::get_id());
 }
 
+// What libcholmod's timer reads find (core/cholmod_timers.cc): the program's definition, which
+// does not read the clock. libsuitesparseconfig's returns the wall-clock time in seconds.
+TEST_CASE("CHOLMOD's timers do not read the clock", "[sparse_cholesky]") {
+  using Timer = double (*)();
+  const auto timer = reinterpret_cast<Timer>(dlsym(RTLD_DEFAULT, "SuiteSparse_time"));
+  REQUIRE(timer != nullptr);
+  CHECK(timer() == 0.0);
+}
+
 }  // namespace
 }  // namespace irrr
