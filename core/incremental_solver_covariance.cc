@@ -15,6 +15,10 @@ std::vector<int> SortedUnique(std::vector<int> vertices) {
   return vertices;
 }
 
+// ForwardSolve reads the marks across a range of columns up to this many times the union's size
+// rather than sorting it (a byte read against a comparison sort's several per element).
+constexpr int kMarkScanRatio = 16;
+
 int IndexIn(const std::vector<int>& query, int vertex) {
   return static_cast<int>(std::lower_bound(query.begin(), query.end(), vertex) - query.begin());
 }
@@ -41,14 +45,29 @@ void IncrementalSolver<Pose>::Impl::ForwardSolve(const std::vector<int>& query,
     for (int a = 0; a < d; ++a) starts[k * d + a] = position[s * d + a];
   }
   mark.resize(factor->n, 0);
+  int lowest = factor->n;
+  int highest = -1;
   for (int start : starts) {
     for (int j = start; j >= 0 && !mark[j];) {
       mark[j] = 1;
       columns.push_back(j);
+      lowest = std::min(lowest, j);
+      highest = std::max(highest, j);
       j = Lnz[j] > 1 ? Li[Lp[j] + 1] : -1;
     }
   }
-  std::sort(columns.begin(), columns.end());
+  // A path climbs to ever higher columns, so the union lies between its lowest start and its
+  // highest column. Where that range is not much longer than the union (odometry chains make
+  // both about the factor's size), reading the marks across it is cheaper than sorting: on a
+  // 100 000-pose fleet the sort took half the covariances' time.
+  if (highest - lowest + 1 <= kMarkScanRatio * static_cast<int>(columns.size())) {
+    columns.clear();
+    for (int j = lowest; j <= highest; ++j) {
+      if (mark[j]) columns.push_back(j);
+    }
+  } else {
+    std::sort(columns.begin(), columns.end());
+  }
   row_of.resize(factor->n, -1);
   for (size_t k = 0; k < columns.size(); ++k) row_of[columns[k]] = static_cast<int>(k);
   *Y = RowMajorMatrix::Zero(columns.size(), B != nullptr ? B->cols() : d * m);
