@@ -168,6 +168,11 @@ void WarmEngine<Pose>::Impl::Judge(int k, StepResult* result) {
   // The screen first: each link alone against the good set (a few sparse solves), so that
   // Algorithm 1 weighs only links that are not far off.
   if (component_a == component_b) Screen(k, changed);
+  // What that screen saw, so that a lone link is not screened again below with nothing changed
+  // (Algorithm 1 does not touch the good set).
+  const std::vector<int> screened_links =
+      component_a == component_b ? book->clusters[k].links : std::vector<int>();
+  const double screened_at = LinkThreshold();
   std::vector<int> splits;
   if (book->clusters[k].links.empty()) {
     book->clusters[k].in_reject = true;
@@ -195,7 +200,7 @@ void WarmEngine<Pose>::Impl::Judge(int k, StepResult* result) {
     if (!c.in_r || c.links.empty()) continue;
     // A lone link left of a cluster is screened as one (with the others it went by their median).
     if (c.links.size() == 1 && good.ComponentOf(c.session_a) == good.ComponentOf(c.session_b)) {
-      Screen(q, changed);
+      if (q != k || c.links != screened_links || LinkThreshold() != screened_at) Screen(q, changed);
       if (c.links.empty()) {
         c.in_reject = true;
         continue;
