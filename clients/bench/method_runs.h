@@ -54,7 +54,7 @@ struct MethodRun {
   int capped_steps = 0;  // steps that reached IrrrOptions::step_budget
   std::vector<double> step_ms;
   long peak_rss_kb = 0;  // the child's maximum resident set size
-  bool stopped = false;  // ran past Settings::method_seconds and was stopped: no result
+  bool stopped = false;  // ran past RunInChild's limit_seconds and was stopped: no result
 };
 
 // Runs `method` on `graph` in a child process (child_process.h) and reads its result back, with
