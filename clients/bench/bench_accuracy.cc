@@ -16,14 +16,10 @@
 // runs iRRR and RRR on every session driven backwards (clients/bench/order_runs.h); --order both
 // runs iRRR in both orders and counts the loops accepted in one order only.
 
-#include <sched.h>
 #include <sysexits.h>
-#include <unistd.h>
 
 #include <algorithm>
 #include <cmath>
-#include <ctime>
-#include <fstream>
 #include <functional>
 #include <limits>
 #include <map>
@@ -36,6 +32,7 @@
 #include <CLI/CLI.hpp>
 
 #include "clients/bench/accuracy_cases.h"
+#include "clients/bench/accuracy_report.h"
 #include "clients/bench/method_runs.h"
 #include "clients/bench/order_runs.h"
 #include "clients/bench/reference_files.h"
@@ -83,23 +80,6 @@ struct Settings {
   double method_seconds = 0.0;  // > 0: a method's run is stopped after this long
   // Which order iRRR and RRR see the sessions in (order_runs.h).
   RunOrder order = RunOrder::kForward;
-};
-
-// One finished row of the table, and what the closing summary lines need.
-struct Row {
-  std::string markdown;
-  std::string case_name;
-  std::string method;
-  std::string configuration;  // graph dof and variant
-  uint32_t seed = 0;
-  double seconds = 0.0;
-  double cpu_seconds = 0.0;
-  bool labelled = false;
-  int accepted_wrong = 0;
-  double recall = 0.0;
-  double chi2_ratio = 0.0;  // chi2 over the clean edges / the lowest of the run's methods
-  bool stopped = false;     // the method ran past --method-seconds
-  int order_diffs = -1;     // --order both, iRRR: loops accepted in one order only (-1: none)
 };
 
 // iRRR's odometry faults against the injected ones: "found/injected", and "+N wrong" for the
@@ -541,129 +521,6 @@ Status RunCase(const Case& c,
   return Status::Ok();
 }
 
-// One line per case and method configuration over the seeds of a sweep.
-std::string SweepSummary(const std::vector<Row>& rows) {
-  std::vector<std::pair<std::string, std::string>> keys;
-  for (const Row& r : rows) {
-    const auto key = std::make_pair(r.case_name, r.method + " (" + r.configuration + ")");
-    if (std::find(keys.begin(), keys.end(), key) == keys.end()) keys.push_back(key);
-  }
-  std::string out = "Sweep: per case and method, over its seeds:\n\n";
-  for (const auto& [case_name, method] : keys) {
-    std::vector<double> recalls;
-    int stopped = 0;
-    int none_wrong = 0;
-    int near_lowest = 0;
-    int compared = 0;  // --order both
-    int same_order = 0;
-    const Row* worst = nullptr;
-    for (const Row& r : rows) {
-      if (r.case_name != case_name || r.method + " (" + r.configuration + ")" != method) continue;
-      if (r.stopped) {
-        ++stopped;
-        continue;
-      }
-      recalls.push_back(r.recall);
-      none_wrong += r.accepted_wrong == 0 ? 1 : 0;
-      near_lowest += r.chi2_ratio <= 1.01 ? 1 : 0;
-      compared += r.order_diffs >= 0 ? 1 : 0;
-      same_order += r.order_diffs == 0 ? 1 : 0;
-      if (worst == nullptr || r.accepted_wrong > worst->accepted_wrong ||
-          (r.accepted_wrong == worst->accepted_wrong && r.recall < worst->recall)) {
-        worst = &r;
-      }
-    }
-    std::sort(recalls.begin(), recalls.end());
-    if (recalls.empty()) {
-      out += fmt::format("* {} {}: every run stopped\n", case_name, method);
-      continue;
-    }
-    out += fmt::format(
-        "* {} {}: {} runs, {} with no wrong loop, worst seed {} ({} wrong, recall {:.3f}), "
-        "median recall {:.3f}, chi2 within 1% of the lowest in {}{}{}\n",
-        case_name,
-        method,
-        recalls.size(),
-        none_wrong,
-        worst->seed,
-        worst->accepted_wrong,
-        worst->recall,
-        recalls[(recalls.size() - 1) / 2],
-        near_lowest,
-        compared > 0 ? fmt::format(", {} of {} with 0 order diffs", same_order, compared)
-                     : std::string(),
-        stopped > 0 ? fmt::format(", {} stopped", stopped) : std::string());
-  }
-  return out;
-}
-
-const char* kTableHeader =
-    "| case | failures | method | graph dof | variant | poses | loops true/false | accepted | "
-    "acc. true | acc. false | precision | recall | faults found | chi2 clean | lowest chi2 | "
-    "chi2/lowest | ATE m | oracle ATE m | ATE/oracle | reference | time s | cpu s | peak MB | "
-    "steps | step p50 ms | p90 ms | p99 ms | max ms |\n"
-    "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
-    "---|---|---|---|---|\n";
-
-// The table's header; --order both adds the order diffs column at its end.
-std::string TableHeader(RunOrder order) {
-  const std::string header = kTableHeader;
-  if (order != RunOrder::kBoth) return header;
-  const size_t end = header.find('\n');
-  return header.substr(0, end) + " order diffs |\n" +
-         header.substr(end + 1, header.size() - end - 2) + "---|\n";
-}
-
-std::string CpuModel() {
-  std::ifstream in("/proc/cpuinfo");
-  std::string line;
-  while (std::getline(in, line)) {
-    if (line.rfind("model name", 0) == 0) {
-      const size_t colon = line.find(':');
-      if (colon != std::string::npos) {
-        size_t start = line.find_first_not_of(' ', colon + 1);
-        return start == std::string::npos ? "" : line.substr(start);
-      }
-    }
-  }
-  return "unknown";
-}
-
-// What nproc prints: the CPUs this process may run on.
-int UsableCpus() {
-  cpu_set_t set;
-  CPU_ZERO(&set);
-  if (sched_getaffinity(0, sizeof(set), &set) == 0) return CPU_COUNT(&set);
-  return static_cast<int>(sysconf(_SC_NPROCESSORS_ONLN));
-}
-
-std::string UtcNow() {
-  const std::time_t now = std::time(nullptr);
-  std::tm utc{};
-  gmtime_r(&now, &utc);
-  char text[64];
-  std::strftime(text, sizeof(text), "%Y-%m-%d %H:%M UTC", &utc);
-  return text;
-}
-
-// A command line as a shell would accept it back (arguments with odd characters single-quoted).
-std::string QuotedCommand(int argc, char** argv) {
-  std::string out;
-  for (int k = 0; k < argc; ++k) {
-    std::string arg = argv[k];
-    const bool plain = !arg.empty() && arg.find_first_not_of(
-                                           "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ"
-                                           "0123456789-_./=,:+@%") == std::string::npos;
-    if (!plain) {
-      std::string quoted = "'";
-      for (char ch : arg) quoted += ch == '\'' ? std::string("'\\''") : std::string(1, ch);
-      arg = quoted + "'";
-    }
-    out += (k == 0 ? "" : " ") + arg;
-  }
-  return out;
-}
-
 }  // namespace
 }  // namespace irrr
 
@@ -815,84 +672,26 @@ int main(int argc, char** argv) {
     return EX_USAGE;
   }
 
-  const std::string command = irrr::QuotedCommand(argc, argv);
-  const std::string machine =
-      fmt::format("{} CPU(s) (nproc), {}", irrr::UsableCpus(), irrr::CpuModel());
-  const std::string date = irrr::UtcNow();
-  const int planned = static_cast<int>(cases.size() * settings.methods.size());
+  irrr::ReportContext context;
+  context.command = irrr::QuotedCommand(argc, argv);
+  context.machine = irrr::MachineDescription();
+  context.date = irrr::UtcNow();
+  context.outliers = settings.outliers;
+  context.order = settings.order;
+  context.sweep = seeds.size() > 1;
+  context.planned_rows = static_cast<int>(cases.size() * settings.methods.size());
   std::vector<irrr::Row> rows;
   std::vector<std::string> failures;
-  auto summary_lines = [&]() {
-    std::string out;
-    if (seeds.size() > 1) out += irrr::SweepSummary(rows);
-    for (const irrr::Row& r : rows) {
-      if (seeds.size() == 1 && r.order_diffs >= 0) {
-        out += fmt::format("Order: {} {} ({}) accepted {} loop(s) in one order and not the other\n",
-                           r.case_name,
-                           r.method,
-                           r.configuration,
-                           r.order_diffs);
-      }
-      if (r.case_name == "manhattan-random-1000" && r.method == "irrr") {
-        out += fmt::format(
-            "iRRR incremental over Manhattan + 1000 random outliers ({}): {:.2f} s ({:.2f} s "
-            "CPU)\n",
-            r.configuration,
-            r.seconds,
-            r.cpu_seconds);
-      }
-    }
-    return out;
-  };
   auto write_document = [&]() {
     if (output.empty()) return irrr::Status::Ok();
-    return irrr::WriteFileAtomically(output, [&](std::ostream& out) {
-      out << "# iRRR accuracy benchmark\n\n";
-      out << "Regenerated by `" << command << "` on " << machine << ", " << date << ".\n";
-      if (static_cast<int>(rows.size()) < planned || !failures.empty()) {
-        out << "\n**Partial:** " << rows.size() << " of " << planned << " rows";
-        out << (failures.empty() ? "." : ", failed cases below.") << "\n";
-      }
-      out << "\nSynthetic outliers: core/outliers.h MakeOutliers appended to the clean graph, seed "
-          << settings.outliers.seed << ", grouped modes in groups of "
-          << settings.outliers.group_size << ", local window " << settings.outliers.local_window
-          << " poses; every original loop is true. iRRR options: alpha "
-          << irrr::IrrrOptions().alpha << ", cluster gap " << irrr::IrrrOptions().cluster_gap
-          << " poses; variant \"paper\" = the paper's Algorithms 1-2 as written, \"default\" = "
-             "the strengthened tests (algorithm-notes, \"Beyond the paper\").\n\n";
-      out << "Columns: precision = accepted true / accepted; recall = accepted true / true "
-             "loops; ATE = translation RMSE after rigid alignment of each connected component "
-             "(odometry + accepted loops) to the reference; oracle = odometry + exactly the true "
-             "loops, optimized from dead reckoning; time = wall time of the whole run (iRRR: input "
-             "fed in arrival order and every step; RRR: batch), cpu = this process's CPU time over "
-             "the same span (lower than time when the machine is shared); steps = iRRR steps "
-             "(closed clusters) and their "
-             "optimizations; step latency = wall time of each RunStep. Reference \"GT (iSAM "
-             "chain)\": the noise-free sequential edges of the iSAM ground-truth file chained from "
-             "the origin; \"oracle\": no ground truth exists, the oracle is the reference; \"GPS "
-             "n/N\": Bicocca vertices with a GPS fix within "
-          << irrr::kGpsMatchSeconds
-          << " s (vertex k has time line k of B25b_timestamps.txt), Bovisa vertices 0, "
-          << irrr::kGpsStride << ", " << 2 * irrr::kGpsStride
-          << ", ... (fix k of the GT_GPS file); Bicocca and Bovisa ship no loop labels, so their "
-             "precision, recall and oracle are \"-\".\n\n";
-      out << irrr::RunOrderNote(settings.order);
-      out << irrr::TableHeader(settings.order);
-      for (const irrr::Row& r : rows) out << r.markdown << "\n";
-      const std::string summary = summary_lines();
-      if (!summary.empty()) out << "\n" << summary;
-      if (!failures.empty()) {
-        out << "\nFailed cases:\n\n";
-        for (const std::string& f : failures) out << "* " << f << "\n";
-      }
-      return irrr::Status::Ok();
-    });
+    context.outliers = settings.outliers;  // the seed being run
+    return irrr::WriteReport(output, context, rows, failures);
   };
 
   fmt::print("{} case(s) x {} method configuration(s); {}\n\n",
              cases.size(),
              settings.methods.size(),
-             machine);
+             context.machine);
   fmt::print("{}", irrr::TableHeader(settings.order));
   std::fflush(stdout);
   bool write_failed = false;
@@ -928,7 +727,7 @@ int main(int argc, char** argv) {
       }
     }
   }
-  const std::string summary = summary_lines();
+  const std::string summary = irrr::SummaryLines(rows, context.sweep);
   if (!summary.empty()) fmt::print("\n{}", summary);
   if (write_failed) return EX_CANTCREAT;
   return failures.empty() ? EX_OK : EX_DATAERR;
