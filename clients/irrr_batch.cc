@@ -313,22 +313,10 @@ int Run(const BatchArguments& args, const IrrrOptions& options, FileFormat forma
       Irrr<Pose> irrr(options);
       GraphReplay<Pose> replay(graph, &irrr);
       ReplayProgress<Pose> progress(graph, "iRRR", &line);
-      auto run_steps = [&]() {
-        while (irrr.HasPendingStep()) {
-          const auto step_start = std::chrono::steady_clock::now();
-          steps.push_back(irrr.RunStep());
-          step_ms.push_back(1e3 * SecondsSince(step_start));
-          progress.Show(irrr);
-        }
-      };
-      for (const ArrivalEvent& event : ArrivalOrder(graph)) {
-        replay.Apply(event);
-        progress.Fed(event);
-        progress.Show(irrr);
-        run_steps();
-      }
-      irrr.Flush();
-      run_steps();
+      ReplayTimed(graph, &irrr, &replay, &progress, [&](const StepResult& step, double ms) {
+        steps.push_back(step);
+        step_ms.push_back(ms);
+      });
       line.Clear();
       decisions = replay.Decisions();
       estimate = replay.Estimate();

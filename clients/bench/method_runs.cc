@@ -78,41 +78,26 @@ RunResult RunIncrementalTimed(const std::string& label,
   RunResult result;
   const auto start = std::chrono::steady_clock::now();
   double next_progress_s = kProgressSeconds;
-  int poses_in = 0;
   Irrr<Pose> irrr(options);
+  GraphReplay<Pose> replay(graph, &irrr);
   ProgressLine line;
   ReplayProgress<Pose> progress(graph, "  " + label, &line);
-  auto run_steps = [&]() {
-    while (irrr.HasPendingStep()) {
-      const auto step_start = std::chrono::steady_clock::now();
-      const StepResult step = irrr.RunStep();
-      result.step_ms.push_back(1e3 * SecondsSince(step_start));
-      result.solves += step.solves;
-      result.capped_steps += step.capped ? 1 : 0;
-      if (line.enabled()) {
-        progress.Show(irrr);
-      } else if (const double elapsed_s = SecondsSince(start); elapsed_s >= next_progress_s) {
-        fmt::print(stderr,
-                   "  {}: {:.0f} s, {} steps, pose {}/{}\n",
-                   label,
-                   elapsed_s,
-                   irrr.num_steps(),
-                   poses_in,
-                   graph.num_vertices());
-        next_progress_s = elapsed_s + kProgressSeconds;
-      }
+  ReplayTimed(graph, &irrr, &replay, &progress, [&](const StepResult& step, double ms) {
+    result.step_ms.push_back(ms);
+    result.solves += step.solves;
+    result.capped_steps += step.capped ? 1 : 0;
+    if (line.enabled()) return;
+    if (const double elapsed_s = SecondsSince(start); elapsed_s >= next_progress_s) {
+      fmt::print(stderr,
+                 "  {}: {:.0f} s, {} steps, pose {}/{}\n",
+                 label,
+                 elapsed_s,
+                 irrr.num_steps(),
+                 progress.poses_in(),
+                 graph.num_vertices());
+      next_progress_s = elapsed_s + kProgressSeconds;
     }
-  };
-  GraphReplay<Pose> replay(graph, &irrr);
-  for (const ArrivalEvent& event : ArrivalOrder(graph)) {
-    poses_in += event.kind == ArrivalEvent::Kind::kPose ? 1 : 0;
-    replay.Apply(event);
-    progress.Fed(event);
-    progress.Show(irrr);
-    run_steps();
-  }
-  irrr.Flush();
-  run_steps();
+  });
   line.Clear();
   result.seconds = SecondsSince(start);
   result.steps = irrr.num_steps();

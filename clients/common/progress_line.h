@@ -11,6 +11,7 @@
 #include <condition_variable>
 #include <cstddef>
 #include <cstdio>
+#include <functional>
 #include <mutex>
 #include <string>
 #include <thread>
@@ -106,6 +107,8 @@ class ReplayProgress {
     if (line_->Due()) line_->Update(Text(irrr));
   }
 
+  int poses_in() const { return poses_in_; }
+
   std::string Text(const Irrr<Pose>& irrr) const {
     int accepted = 0;
     int rejected = 0;
@@ -137,6 +140,35 @@ class ReplayProgress {
   int loops_in_ = 0;
   std::chrono::steady_clock::time_point start_;
 };
+
+// RunIncrementalIrrr's replay of `graph` through `replay` into `irrr` (arrival order, every step
+// run as soon as it is due, then a flush and its steps), drawn on `progress`; `on_step(step, ms)`
+// after each step with its wall time.
+template <class Pose>
+void ReplayTimed(const PoseGraph<Pose>& graph,
+                 Irrr<Pose>* irrr,
+                 GraphReplay<Pose>* replay,
+                 ReplayProgress<Pose>* progress,
+                 const std::function<void(const StepResult&, double)>& on_step) {
+  auto run_steps = [&]() {
+    while (irrr->HasPendingStep()) {
+      const auto start = std::chrono::steady_clock::now();
+      const StepResult step = irrr->RunStep();
+      on_step(step,
+              std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
+                  .count());
+      progress->Show(*irrr);
+    }
+  };
+  for (const ArrivalEvent& event : ArrivalOrder(graph)) {
+    replay->Apply(event);
+    progress->Fed(event);
+    progress->Show(*irrr);
+    run_steps();
+  }
+  irrr->Flush();
+  run_steps();
+}
 
 }  // namespace irrr
 
