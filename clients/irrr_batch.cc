@@ -316,6 +316,7 @@ int Run(const BatchArguments& args, const IrrrOptions& options, FileFormat forma
       ReplayTimed(graph, &irrr, &replay, &progress, [&](const StepResult& step, double ms) {
         steps.push_back(step);
         step_ms.push_back(ms);
+        return true;
       });
       line.Clear();
       decisions = replay.Decisions();

@@ -128,36 +128,19 @@ RunResult RunIncremental(const PoseGraph<Pose>& graph,
   // On a terminal, a progress line on stderr (nothing otherwise).
   ProgressLine line;
   ReplayProgress<Pose> progress(graph, "  iRRR", &line);
-  bool over_budget = false;
-  auto run_steps = [&]() {
-    while (irrr.HasPendingStep() && !over_budget) {
-      const auto step_start = std::chrono::steady_clock::now();
-      const StepResult step = irrr.RunStep();
-      result.step_ms.push_back(1e3 * SecondsSince(step_start));
-      result.solves += step.solves;
-      result.iterations += step.iterations;
-      result.max_solves = std::max(result.max_solves, step.solves);
-      over_budget = SecondsSince(start) > budget_s;
-      progress.Show(irrr);
-    }
-  };
-  for (const ArrivalEvent& event : ArrivalOrder(graph)) {
-    if (over_budget) break;
-    result.poses_in += event.kind == ArrivalEvent::Kind::kPose ? 1 : 0;
-    replay.Apply(event);
-    progress.Fed(event);
-    progress.Show(irrr);
-    run_steps();
-  }
-  if (!over_budget) {
-    irrr.Flush();
-    run_steps();
-  }
+  result.finished =
+      ReplayTimed(graph, &irrr, &replay, &progress, [&](const StepResult& step, double ms) {
+        result.step_ms.push_back(ms);
+        result.solves += step.solves;
+        result.iterations += step.iterations;
+        result.max_solves = std::max(result.max_solves, step.solves);
+        return SecondsSince(start) <= budget_s;
+      });
+  result.poses_in = progress.poses_in();
   line.Clear();
   result.seconds = SecondsSince(start);
   result.steps = irrr.num_steps();
   result.peak_kb = StatusKb("VmHWM");
-  result.finished = !over_budget;
   if (result.finished) {
     for (const LoopDecision& d : replay.Decisions()) {
       result.states.push_back(static_cast<int>(d.state));

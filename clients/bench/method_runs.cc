@@ -86,7 +86,7 @@ RunResult RunIncrementalTimed(const std::string& label,
     result.step_ms.push_back(ms);
     result.solves += step.solves;
     result.capped_steps += step.capped ? 1 : 0;
-    if (line.enabled()) return;
+    if (line.enabled()) return true;
     if (const double elapsed_s = SecondsSince(start); elapsed_s >= next_progress_s) {
       fmt::print(stderr,
                  "  {}: {:.0f} s, {} steps, pose {}/{}\n",
@@ -97,6 +97,7 @@ RunResult RunIncrementalTimed(const std::string& label,
                  graph.num_vertices());
       next_progress_s = elapsed_s + kProgressSeconds;
     }
+    return true;
   });
   line.Clear();
   result.seconds = SecondsSince(start);

@@ -143,31 +143,37 @@ class ReplayProgress {
 
 // RunIncrementalIrrr's replay of `graph` through `replay` into `irrr` (arrival order, every step
 // run as soon as it is due, then a flush and its steps), drawn on `progress`; `on_step(step, ms)`
-// after each step with its wall time.
+// after each step with its wall time returns whether to go on. Returns false when it stopped the
+// replay (before the flush).
 template <class Pose>
-void ReplayTimed(const PoseGraph<Pose>& graph,
+bool ReplayTimed(const PoseGraph<Pose>& graph,
                  Irrr<Pose>* irrr,
                  GraphReplay<Pose>* replay,
                  ReplayProgress<Pose>* progress,
-                 const std::function<void(const StepResult&, double)>& on_step) {
+                 const std::function<bool(const StepResult&, double)>& on_step) {
+  bool going = true;
   auto run_steps = [&]() {
-    while (irrr->HasPendingStep()) {
+    while (going && irrr->HasPendingStep()) {
       const auto start = std::chrono::steady_clock::now();
       const StepResult step = irrr->RunStep();
-      on_step(step,
-              std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
-                  .count());
+      going = on_step(
+          step,
+          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
+              .count());
       progress->Show(*irrr);
     }
   };
   for (const ArrivalEvent& event : ArrivalOrder(graph)) {
+    if (!going) return false;
     replay->Apply(event);
     progress->Fed(event);
     progress->Show(*irrr);
     run_steps();
   }
+  if (!going) return false;
   irrr->Flush();
   run_steps();
+  return going;
 }
 
 }  // namespace irrr
