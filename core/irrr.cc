@@ -85,6 +85,7 @@ struct Irrr<Pose>::State {
   std::vector<int> closed;      // clusterer clusters, in closing order
   std::vector<int> cluster_of;  // judged cluster of each clusterer cluster
   size_t next_closed = 0;
+  std::vector<ArrivalEvent> arrivals;  // the inputs taken, in order
   WarmEngine<Pose> warm;
   PaperEngine<Pose> paper;
 };
@@ -130,6 +131,7 @@ Status Irrr<Pose>::AddPose(int session,
   st.estimate.push_back(initial);
   st.dead_reckoning.push_back(dead_reckoning);
   for (int e = edges_before; e < st.graph.num_edges(); ++e) st.book.decisions.emplace_back();
+  st.arrivals.push_back({ArrivalEvent::Kind::kPose, index});
   if (st.IsWarm()) st.warm.AddPose(index);
   st.Closed(st.clusterer.AdvanceSession(session, stamp));
   if (vertex_index != nullptr) *vertex_index = index;
@@ -148,6 +150,7 @@ Status Irrr<Pose>::AddLoop(int from_vertex,
       !s.ok()) {
     return s;
   }
+  st.arrivals.push_back({ArrivalEvent::Kind::kLoop, edge});
   const Vertex& from = st.graph.vertex(from_vertex);
   const Vertex& to = st.graph.vertex(to_vertex);
   const int cluster = st.clusterer.AddLink(edge, from.session, from.stamp, to.session, to.stamp);
@@ -167,6 +170,7 @@ Status Irrr<Pose>::EndSession(int session) {
   if (session < 0 || session >= state_->graph.num_sessions()) {
     return Status::Error("unknown session index " + std::to_string(session));
   }
+  state_->arrivals.push_back({ArrivalEvent::Kind::kEndSession, session});
   state_->Closed(state_->clusterer.EndSession(session));
   state_->warm.Release();
   return Status::Ok();
@@ -174,6 +178,7 @@ Status Irrr<Pose>::EndSession(int session) {
 
 template <class Pose>
 void Irrr<Pose>::Flush() {
+  state_->arrivals.push_back({ArrivalEvent::Kind::kFlush, -1});
   state_->Closed(state_->clusterer.CloseAll());
   state_->warm.Release();
 }
@@ -226,6 +231,17 @@ const LoopClusterer& Irrr<Pose>::clusters() const {
 template <class Pose>
 int Irrr<Pose>::num_steps() const {
   return state_->book.step;
+}
+
+template <class Pose>
+const std::vector<ArrivalEvent>& Irrr<Pose>::Arrivals() const {
+  return state_->arrivals;
+}
+
+template <class Pose>
+const typename Irrr<Pose>::Matrix& Irrr<Pose>::GivenInformation(int edge) const {
+  return state_->IsWarm() ? state_->warm.GivenInformation(edge)
+                          : state_->graph.edge(edge).information;
 }
 
 template <class Pose>
@@ -436,6 +452,9 @@ void GraphReplay<Pose>::Apply(const ArrivalEvent& event) {
     }
     case ArrivalEvent::Kind::kEndSession:
       IRRR_CHECK(irrr_->EndSession(session_of_[event.index]).ok());
+      break;
+    case ArrivalEvent::Kind::kFlush:
+      irrr_->Flush();
       break;
   }
 }

@@ -32,6 +32,19 @@
 
 namespace irrr {
 
+// One input event, as an Irrr takes them (Irrr::Arrivals) or a graph is replayed in arrival order
+// (algorithm-notes, "Files as input").
+struct ArrivalEvent {
+  enum class Kind {
+    kPose,        // vertex `index` arrives with its odometry edge (none for a session's first)
+    kLoop,        // loop edge `index` arrives (right after the later of its two poses)
+    kEndSession,  // session `index` ends (right after its last pose and that pose's loops)
+    kFlush,       // every open cluster closes (Irrr::Flush; `index` unused)
+  };
+  Kind kind = Kind::kPose;
+  int index = -1;
+};
+
 // What an Irrr's steps have computed. Everything else an Irrr holds (graph, clusters, dead
 // reckoning) follows from its inputs alone, so an Irrr fed the same inputs without running their
 // steps and then given this state continues as the Irrr that ran them (the daemon's snapshots).
@@ -91,6 +104,15 @@ class Irrr {
   std::vector<int> Components() const;
   int num_steps() const;
 
+  // The inputs taken so far (the calls that succeeded), in the order taken: a session's AddSession
+  // goes with its first pose. Fed again to a new Irrr in this order, from graph() with every edge's
+  // GivenInformation, without running their steps, they rebuild this Irrr's graph and clusters, to
+  // which RestoreStepState(StepState()) adds what the steps computed (the daemon's compacted
+  // journal).
+  const std::vector<ArrivalEvent>& Arrivals() const;
+  // The information graph edge `edge` was given with (the engine may have weakened it since).
+  const Matrix& GivenInformation(int edge) const;
+
   // What the steps have computed, and its restoration into an Irrr that was fed the same inputs
   // without running their steps. RestoreStepState fails, changing nothing, on a state that does
   // not fit this Irrr's graph and clusters. The warm engine rebuilds its good-set estimate from
@@ -116,17 +138,6 @@ template <class Pose>
 std::vector<LoopDecision> RunBatchRrr(const PoseGraph<Pose>& graph,
                                       const IrrrOptions& options,
                                       std::vector<Pose>* estimate);
-
-// One input event of a graph replayed in arrival order (algorithm-notes, "Files as input").
-struct ArrivalEvent {
-  enum class Kind {
-    kPose,        // vertex `index` arrives with its odometry edge (none for a session's first)
-    kLoop,        // loop edge `index` arrives (right after the later of its two poses)
-    kEndSession,  // session `index` ends (right after its last pose and that pose's loops)
-  };
-  Kind kind = Kind::kPose;
-  int index = -1;
-};
 
 // The arrival order of a whole graph: vertices in index order; each vertex's loops (edges whose
 // later endpoint it is, in edge order) right after it; a session's end right after its last

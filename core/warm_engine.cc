@@ -613,6 +613,12 @@ std::vector<int> WarmEngine<Pose>::WeakenedOdometry() const {
 }
 
 template <class Pose>
+const typename Pose::Matrix& WarmEngine<Pose>::GivenInformation(int edge) const {
+  const auto it = impl_->weakened.find(edge);
+  return it != impl_->weakened.end() ? it->second : impl_->graph->edge(edge).information;
+}
+
+template <class Pose>
 void WarmEngine<Pose>::RestoreWeakened(const std::vector<int>& edges) {
   impl_->Weaken(edges);
 }

@@ -63,6 +63,8 @@ class WarmEngine {
   // The odometry edges the arbiter found faulty (ascending): their information is scaled by
   // kFaultWeight in the graph, as if the session were split there and joined again by its loops.
   std::vector<int> WeakenedOdometry() const;
+  // The information graph edge `edge` was given with (before any weakening).
+  const typename Pose::Matrix& GivenInformation(int edge) const;
   // Before Restore: the odometry edges a snapshot's engine had weakened are weakened again.
   void RestoreWeakened(const std::vector<int>& edges);
 

@@ -77,6 +77,10 @@ std::vector<ReplayMessage> ReplayMessages(const PoseGraph<Pose>& graph,
         s.last_hypothesis_id = -1;
         break;
       }
+      case ArrivalEvent::Kind::kFlush:  // ArrivalOrder gives none
+        m.kind = ReplayMessage::Kind::kSession;
+        m.session.event = session_event_t::FLUSH;
+        break;
     }
     m.stamp = stamp;
     out.push_back(std::move(m));
