@@ -12,8 +12,10 @@ namespace irrr {
 namespace {
 
 constexpr char kMagic[8] = {'I', 'R', 'R', 'R', 'J', 'N', 'L', '1'};
-constexpr size_t kRecordHeader = 8;       // length + CRC
-constexpr size_t kPayloadHeader = 1 + 8;  // kind + received_utime
+constexpr char kCompactedMagic[8] = {'I', 'R', 'R', 'R', 'J', 'N', 'L', '2'};
+constexpr size_t kCompactedHeader = 8 + 8 + 4;  // magic, first record, CRC before
+constexpr size_t kRecordHeader = 8;             // length + CRC
+constexpr size_t kPayloadHeader = 1 + 8;        // kind + received_utime
 constexpr uint32_t kMaxPayload = 64u << 20;
 
 void PutU32(uint32_t v, std::vector<uint8_t>* out) {
@@ -72,13 +74,22 @@ std::vector<uint8_t> EncodeJournalRecord(const JournalRecord& record) {
   return out;
 }
 
-uint32_t JournalCrc(const std::vector<JournalRecord>& records, size_t count) {
-  uint32_t crc = Crc32(nullptr, 0);
+uint32_t EmptyJournalCrc() { return Crc32(nullptr, 0); }
+
+uint32_t JournalCrc(const std::vector<JournalRecord>& records, size_t count, uint32_t before) {
+  uint32_t crc = before;
   for (size_t k = 0; k < count && k < records.size(); ++k) {
     const std::vector<uint8_t> encoded = EncodeJournalRecord(records[k]);
     crc = ContinueCrc32(crc, encoded.data(), encoded.size());
   }
   return crc;
+}
+
+uint32_t JournalCrc(const JournalRecovery& journal, int64_t end) {
+  IRRR_CHECK(end >= journal.first_record &&
+             end - journal.first_record <= static_cast<int64_t>(journal.records.size()));
+  return JournalCrc(
+      journal.records, static_cast<size_t>(end - journal.first_record), journal.crc_before);
 }
 
 std::vector<JournalRecord> DecodeJournalRecords(const std::vector<uint8_t>& data,
@@ -131,8 +142,8 @@ Status Journal::Open(const std::string& path, JournalSyncPolicy sync, JournalRec
   path_ = path;
   sync_ = sync;
   *recovery = JournalRecovery();
-  records_ = 0;
-  crc_ = Crc32(nullptr, 0);
+  first_record_ = 0;
+  crc_ = EmptyJournalCrc();
   fd_ = open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
   if (fd_ < 0) return Errno(path);
   std::vector<uint8_t> data;
@@ -148,19 +159,32 @@ Status Journal::Open(const std::string& path, JournalSyncPolicy sync, JournalRec
     if (Status s = WriteAll(fd_, reinterpret_cast<const uint8_t*>(kMagic), sizeof kMagic); !s.ok())
       return Status::Error(path + ": " + s.message());
     if (fdatasync(fd_) != 0) return Errno(path + ": fdatasync");
-    size_ = sizeof kMagic;
+    size_ = header_bytes_ = sizeof kMagic;
+    records_ = 0;
+    recovery->crc_before = crc_;
     recovery->valid_bytes = size_;
     return Status::Ok();
   }
-  if (data.size() < sizeof kMagic || std::memcmp(data.data(), kMagic, sizeof kMagic) != 0) {
-    return Status::Error(path + ": not an irrrd journal (it does not start with IRRRJNL1)");
+  if (data.size() >= sizeof kMagic && std::memcmp(data.data(), kMagic, sizeof kMagic) == 0) {
+    header_bytes_ = sizeof kMagic;
+  } else if (data.size() >= kCompactedHeader &&
+             std::memcmp(data.data(), kCompactedMagic, sizeof kCompactedMagic) == 0) {
+    header_bytes_ = kCompactedHeader;
+    first_record_ = GetI64(&data[8]);
+    crc_ = GetU32(&data[16]);
+    if (first_record_ < 0) return Status::Error(path + ": its header numbers a negative record");
+  } else {
+    return Status::Error(path +
+                         ": not an irrrd journal (it does not start with IRRRJNL1 or IRRRJNL2)");
   }
+  recovery->first_record = first_record_;
+  recovery->crc_before = crc_;
   size_t consumed = 0;
-  recovery->records =
-      DecodeJournalRecords(data, sizeof kMagic, &consumed, &recovery->dropped_reason);
-  size_ = static_cast<int64_t>(sizeof kMagic + consumed);
-  records_ = static_cast<int64_t>(recovery->records.size());
-  crc_ = ContinueCrc32(crc_, data.data() + sizeof kMagic, consumed);
+  recovery->records = DecodeJournalRecords(
+      data, static_cast<size_t>(header_bytes_), &consumed, &recovery->dropped_reason);
+  size_ = header_bytes_ + static_cast<int64_t>(consumed);
+  records_ = first_record_ + static_cast<int64_t>(recovery->records.size());
+  crc_ = ContinueCrc32(crc_, data.data() + header_bytes_, consumed);
   recovery->valid_bytes = size_;
   recovery->dropped_bytes = static_cast<int64_t>(data.size()) - size_;
   if (recovery->dropped_bytes > 0) {
@@ -168,6 +192,53 @@ Status Journal::Open(const std::string& path, JournalSyncPolicy sync, JournalRec
     if (fdatasync(fd_) != 0) return Errno(path + ": fdatasync");
   }
   if (lseek(fd_, size_, SEEK_SET) < 0) return Errno(path + ": lseek");
+  return Status::Ok();
+}
+
+Status Journal::Compact(const std::string& archive) {
+  if (fd_ < 0) return Status::Error("journal: not open");
+  const bool sync = sync_ != JournalSyncPolicy::kNever;
+  const std::string tmp = path_ + ".tmp";
+  std::vector<uint8_t> header(kCompactedMagic, kCompactedMagic + sizeof kCompactedMagic);
+  PutI64(records_, &header);
+  PutU32(crc_, &header);
+  const int fd = open(tmp.c_str(), O_RDWR | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (fd < 0) return Errno(tmp);
+  Status s = WriteAll(fd, header.data(), header.size());
+  if (s.ok() && sync && fdatasync(fd) != 0) s = Errno(tmp + ": fdatasync");
+  if (!s.ok()) {
+    close(fd);
+    unlink(tmp.c_str());
+    return s;
+  }
+  // The old file stays whole under the archive's name (a second name for it, nothing copied).
+  if (!archive.empty()) {
+    unlink(archive.c_str());
+    if (link(path_.c_str(), archive.c_str()) != 0) {
+      close(fd);
+      unlink(tmp.c_str());
+      return Errno("link " + path_ + " " + archive);
+    }
+  }
+  if (rename(tmp.c_str(), path_.c_str()) != 0) {
+    close(fd);
+    unlink(tmp.c_str());
+    return Errno("rename " + tmp + " " + path_);
+  }
+  if (sync) {
+    const size_t slash = path_.find_last_of('/');
+    const std::string dir = slash == std::string::npos ? "." : path_.substr(0, slash + 1);
+    const int dir_fd = open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+    if (dir_fd >= 0) {
+      fsync(dir_fd);
+      close(dir_fd);
+    }
+  }
+  close(fd_);
+  fd_ = fd;
+  size_ = header_bytes_ = static_cast<int64_t>(header.size());
+  first_record_ = records_;
+  if (lseek(fd_, size_, SEEK_SET) < 0) return Errno(path_ + ": lseek");
   return Status::Ok();
 }
 

@@ -92,6 +92,50 @@ TEST_CASE("Journal: a batch's append names the CRC after each of its records", "
   CHECK(crc_after.front() != JournalCrc(all, 3));
 }
 
+TEST_CASE("Journal: compacted, it starts again empty and goes on numbering and naming records",
+          "[reliability]") {
+  const std::string dir = TestDirectory("journal_compact");
+  const std::string path = dir + "/journal";
+  const std::string archive = path + ".0-3";
+  for (const std::string& p : {path, archive}) std::remove(p.c_str());
+  std::vector<JournalRecord> all;
+  for (uint8_t k = 0; k < 5; ++k) all.push_back(Record(k, 7 + k));
+  Journal journal;
+  JournalRecovery recovery;
+  REQUIRE(journal.Open(path, JournalSyncPolicy::kBatch, &recovery).ok());
+  REQUIRE(journal.Append({all[0], all[1], all[2]}).ok());
+  const int64_t old_size = journal.size_bytes();
+  REQUIRE(journal.Compact(archive).ok());
+  CHECK(journal.records() == 3);
+  CHECK(journal.first_record() == 3);
+  CHECK(journal.crc() == JournalCrc(all, 3));
+  CHECK(journal.size_bytes() == 20);
+  CHECK(FileSize(path) == 20);
+  REQUIRE(journal.Append({all[3], all[4]}).ok());
+  CHECK(journal.crc() == JournalCrc(all, 5));
+
+  // Read back: the records after the compaction, numbered from 3, with the CRC before them.
+  Journal reopened;
+  REQUIRE(reopened.Open(path, JournalSyncPolicy::kNever, &recovery).ok());
+  CHECK(recovery.first_record == 3);
+  CHECK(recovery.crc_before == JournalCrc(all, 3));
+  REQUIRE(recovery.records.size() == 2);
+  CHECK(recovery.records[1].bytes == all[4].bytes);
+  CHECK(JournalCrc(recovery, 5) == JournalCrc(all, 5));
+  CHECK(JournalCrc(recovery, 3) == JournalCrc(all, 3));
+  CHECK(reopened.records() == 5);
+  CHECK(reopened.crc() == journal.crc());
+
+  // The archive is the journal as it was before: records 0 to 2.
+  Journal old;
+  REQUIRE(old.Open(archive, JournalSyncPolicy::kNever, &recovery).ok());
+  CHECK(FileSize(archive) == old_size);
+  CHECK(recovery.first_record == 0);
+  REQUIRE(recovery.records.size() == 3);
+  CHECK(recovery.records[2].bytes == all[2].bytes);
+  CHECK(old.crc() == JournalCrc(all, 3));
+}
+
 TEST_CASE("Journal: records come back as written; a torn or corrupt tail is dropped",
           "[reliability]") {
   const std::string dir = TestDirectory("journal");
