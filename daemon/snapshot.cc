@@ -13,7 +13,13 @@ namespace irrr {
 namespace {
 
 constexpr char kMagic[8] = {'I', 'R', 'R', 'R', 'S', 'N', 'P', '6'};
+constexpr char kBaseMagic[8] = {'I', 'R', 'R', 'R', 'B', 'A', 'S', '1'};
 constexpr size_t kHeader = sizeof kMagic + 8;  // magic, length, CRC
+
+const char* MagicOf(SnapshotKind kind) { return kind == SnapshotKind::kBase ? kBaseMagic : kMagic; }
+
+// The kinds of input in SnapshotWriter::Inputs.
+enum InputKind : int64_t { kFirstPose = 0, kPose = 1, kLoop = 2, kEndSession = 3, kFlush = 4 };
 constexpr uint32_t kMaxBody = 1u << 31;
 
 void PutU32(uint32_t v, std::vector<uint8_t>* out) {
@@ -117,6 +123,54 @@ void SnapshotWriter::StepState(const IrrrStepState<Pose>& state) {
   I64(state.steps);
   I64(state.judged);
   Ints(state.weakened_odometry);
+}
+
+template <class Pose>
+void SnapshotWriter::InformationValue(const typename Pose::Matrix& information) {
+  for (int r = 0; r < Pose::kDim; ++r) {
+    for (int c = 0; c < Pose::kDim; ++c) F64(information(r, c));
+  }
+}
+
+template <class Pose>
+void SnapshotWriter::Inputs(const Irrr<Pose>& irrr) {
+  const PoseGraph<Pose>& graph = irrr.graph();
+  const std::vector<ArrivalEvent>& arrivals = irrr.Arrivals();
+  I64(static_cast<int64_t>(arrivals.size()));
+  for (const ArrivalEvent& event : arrivals) {
+    switch (event.kind) {
+      case ArrivalEvent::Kind::kPose: {
+        const Vertex& vertex = graph.vertex(event.index);
+        const int odometry = graph.OdometryInto(event.index);
+        I64(odometry < 0 ? kFirstPose : kPose);
+        I64(vertex.session);
+        if (odometry < 0) I64(graph.session(vertex.session).id);
+        I64(vertex.id);
+        F64(vertex.stamp);
+        if (odometry >= 0) {
+          PoseValue(graph.edge(odometry).measurement);
+          InformationValue<Pose>(irrr.GivenInformation(odometry));
+        }
+        break;
+      }
+      case ArrivalEvent::Kind::kLoop: {
+        const Edge<Pose>& edge = graph.edge(event.index);
+        I64(kLoop);
+        I64(edge.from);
+        I64(edge.to);
+        PoseValue(edge.measurement);
+        InformationValue<Pose>(irrr.GivenInformation(event.index));
+        break;
+      }
+      case ArrivalEvent::Kind::kEndSession:
+        I64(kEndSession);
+        I64(event.index);
+        break;
+      case ArrivalEvent::Kind::kFlush:
+        I64(kFlush);
+        break;
+    }
+  }
 }
 
 // ---- Reader ----
@@ -240,13 +294,92 @@ bool SnapshotReader::StepState(IrrrStepState<Pose>* state) {
          Ints(&state->weakened_odometry);
 }
 
+template <class Pose>
+bool SnapshotReader::InformationValue(typename Pose::Matrix* information) {
+  for (int r = 0; r < Pose::kDim; ++r) {
+    for (int c = 0; c < Pose::kDim; ++c) {
+      if (!F64(&(*information)(r, c))) return false;
+    }
+  }
+  return true;
+}
+
+template <class Pose>
+bool SnapshotReader::FeedInputs(Irrr<Pose>* irrr) {
+  size_t n = 0;
+  if (!Count(8, &n)) return false;
+  for (size_t k = 0; k < n; ++k) {
+    int64_t kind = 0;
+    if (!I64(&kind)) return false;
+    Status fed = Status::Ok();
+    switch (kind) {
+      case kFirstPose:
+      case kPose: {
+        int session = -1;
+        int64_t session_id = 0;
+        int64_t vertex_id = 0;
+        double stamp = 0.0;
+        if (!Int(&session) || (kind == kFirstPose && !I64(&session_id)) || !I64(&vertex_id) ||
+            !F64(&stamp)) {
+          return false;
+        }
+        if (kind == kFirstPose) {
+          int added = -1;
+          fed = irrr->AddSession(session_id, &added);
+          if (fed.ok() && added != session) return !(failed_ = true);
+        }
+        Pose odometry;
+        typename Pose::Matrix information;
+        if (kind == kPose && (!PoseValue(&odometry) || !InformationValue<Pose>(&information))) {
+          return false;
+        }
+        if (fed.ok()) {
+          fed = irrr->AddPose(session,
+                              vertex_id,
+                              stamp,
+                              kind == kPose ? &odometry : nullptr,
+                              kind == kPose ? &information : nullptr,
+                              nullptr);
+        }
+        break;
+      }
+      case kLoop: {
+        int from = -1;
+        int to = -1;
+        Pose measurement;
+        typename Pose::Matrix information;
+        if (!Int(&from) || !Int(&to) || !PoseValue(&measurement) ||
+            !InformationValue<Pose>(&information)) {
+          return false;
+        }
+        fed = irrr->AddLoop(from, to, measurement, information, nullptr);
+        break;
+      }
+      case kEndSession: {
+        int session = -1;
+        if (!Int(&session)) return false;
+        fed = irrr->EndSession(session);
+        break;
+      }
+      case kFlush:
+        irrr->Flush();
+        break;
+      default:
+        return !(failed_ = true);
+    }
+    if (!fed.ok()) return !(failed_ = true);
+  }
+  return true;
+}
+
 // ---- Files ----
 
 Status WriteSnapshotFile(const std::string& path,
                          const std::vector<uint8_t>& body,
-                         JournalSyncPolicy sync) {
+                         JournalSyncPolicy sync,
+                         SnapshotKind kind) {
   if (body.size() > kMaxBody) return Status::Error(path + ": snapshot too large");
-  std::vector<uint8_t> header(kMagic, kMagic + sizeof kMagic);
+  std::vector<uint8_t> header(MagicOf(kind), MagicOf(kind) + sizeof kMagic);
   PutU32(static_cast<uint32_t>(body.size()), &header);
   PutU32(Crc32(body.data(), body.size()), &header);
   const std::string tmp = path + ".tmp";
@@ -272,7 +405,10 @@ Status WriteSnapshotFile(const std::string& path,
   return Status::Ok();
 }
 
-Status ReadSnapshotFile(const std::string& path, std::vector<uint8_t>* body, bool* exists) {
+Status ReadSnapshotFile(const std::string& path,
+                        std::vector<uint8_t>* body,
+                        bool* exists,
+                        SnapshotKind kind) {
   body->clear();
   *exists = false;
   const int fd = open(path.c_str(), O_RDONLY | O_CLOEXEC);
@@ -291,9 +427,11 @@ Status ReadSnapshotFile(const std::string& path, std::vector<uint8_t>* body, boo
     data.insert(data.end(), buffer, buffer + n);
   }
   close(fd);
-  if (data.size() < kHeader || std::memcmp(data.data(), kMagic, sizeof kMagic) != 0) {
-    return Status::Error(path + ": not an irrrd snapshot of this version (it does not start with " +
-                         std::string(kMagic, sizeof kMagic) + ")");
+  if (data.size() < kHeader || std::memcmp(data.data(), MagicOf(kind), sizeof kMagic) != 0) {
+    return Status::Error(path + ": not an irrrd " +
+                         (kind == SnapshotKind::kBase ? "base" : "snapshot") +
+                         " of this version (it does not start with " +
+                         std::string(MagicOf(kind), sizeof kMagic) + ")");
   }
   const uint32_t length = GetU32(&data[sizeof kMagic]);
   const uint32_t crc = GetU32(&data[sizeof kMagic + 4]);
@@ -310,5 +448,9 @@ template void SnapshotWriter::StepState(const IrrrStepState<Pose2>&);
 template void SnapshotWriter::StepState(const IrrrStepState<Pose3>&);
 template bool SnapshotReader::StepState(IrrrStepState<Pose2>*);
 template bool SnapshotReader::StepState(IrrrStepState<Pose3>*);
+template void SnapshotWriter::Inputs(const Irrr<Pose2>&);
+template void SnapshotWriter::Inputs(const Irrr<Pose3>&);
+template bool SnapshotReader::FeedInputs(Irrr<Pose2>*);
+template bool SnapshotReader::FeedInputs(Irrr<Pose3>*);
 
 }  // namespace irrr

@@ -18,6 +18,7 @@ using testing::CountAccepted;
 using testing::MakeCorrupted;
 using testing::NoisyWorld;
 using testing::SyntheticOptions;
+using testing::WithFault;
 
 template <class Pose>
 std::vector<LoopDecision> Reversed(const PoseGraph<Pose>& graph, const IrrrOptions& options) {
@@ -26,42 +27,6 @@ std::vector<LoopDecision> Reversed(const PoseGraph<Pose>& graph, const IrrrOptio
       RunIncrementalIrrr<Pose>(reversed.graph, options, nullptr, nullptr);
   std::vector<LoopDecision> out(graph.num_edges());
   for (int e = 0; e < graph.num_edges(); ++e) out[e] = decisions[reversed.edge_of[e]];
-  return out;
-}
-
-// `graph` with odometry edge `edge`'s measurement moved by `offset` (a fault), initial estimate
-// unchanged.
-template <class Pose>
-PoseGraph<Pose> WithFault(const PoseGraph<Pose>& graph,
-                          int edge,
-                          const typename Pose::Tangent& offset) {
-  PoseGraph<Pose> out;
-  for (int s = 0; s < graph.num_sessions(); ++s) {
-    int index = -1;
-    REQUIRE(out.AddSession(graph.session(s).id, &index).ok());
-  }
-  for (int v = 0; v < graph.num_vertices(); ++v) {
-    const int odometry = graph.OdometryInto(v);
-    Pose measurement;
-    if (odometry >= 0) {
-      measurement = graph.edge(odometry).measurement;
-      if (odometry == edge) measurement = measurement * Pose::Exp(offset);
-    }
-    int index = -1;
-    REQUIRE(out.AddPose(graph.vertex(v).session,
-                        graph.vertex(v).id,
-                        graph.vertex(v).stamp,
-                        graph.initial_estimate()[v],
-                        odometry >= 0 ? &measurement : nullptr,
-                        odometry >= 0 ? &graph.edge(odometry).information : nullptr,
-                        &index)
-                .ok());
-  }
-  for (int e = 0; e < graph.num_edges(); ++e) {
-    const Edge<Pose>& loop = graph.edge(e);
-    if (loop.kind != EdgeKind::kLoop) continue;
-    REQUIRE(out.AddLoop(loop.from, loop.to, loop.measurement, loop.information, nullptr).ok());
-  }
   return out;
 }
 

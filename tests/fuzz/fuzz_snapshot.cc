@@ -1,7 +1,8 @@
 // libFuzzer target: a daemon snapshot's body (daemon/snapshot.h) read back and restored into an
-// Irrr (core/irrr.h RestoreStepState). A file that fails its CRC never gets this far, but a
-// snapshot written by another version, or a disk that returns other bytes with a valid CRC, must
-// be refused, never crash the daemon.
+// Irrr (core/irrr.h RestoreStepState), then, as a base holds them, an SE(2) and an SE(3) Irrr's
+// inputs fed to fresh ones (SnapshotReader::FeedInputs). A file that fails its CRC never gets this
+// far, but a snapshot or base written by another version, or a disk that returns other bytes with
+// a valid CRC, must be refused, never crash the daemon.
 
 #include <cstddef>
 #include <cstdint>
@@ -56,7 +57,14 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     return 0;
   }
   // Whatever decoded either fits the Irrr or is refused with a reason.
-  if (!Fed<irrr::Pose2>().RestoreStepState(se2).ok()) return 0;
-  if (!Fed<irrr::Pose3>().RestoreStepState(se3).ok()) return 0;
+  const bool restored = Fed<irrr::Pose2>().RestoreStepState(se2).ok() &&
+                        Fed<irrr::Pose3>().RestoreStepState(se3).ok();
+  (void)restored;
+  // Inputs: each one the fresh Irrr takes, or refuses (the feed then stops).
+  irrr::IrrrOptions options;
+  options.cluster_gap = 2.0;
+  irrr::Irrr<irrr::Pose2> fresh2(options);
+  irrr::Irrr<irrr::Pose3> fresh3(options);
+  if (reader.FeedInputs(&fresh2)) reader.FeedInputs(&fresh3);
   return 0;
 }
