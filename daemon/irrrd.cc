@@ -159,8 +159,11 @@ int Run(const Arguments& args, const CLI::App& app) {
       spdlog::critical("journal: {}", s.message());
       return EX_IOERR;
     }
-    if (!recovery.records.empty() || recovery.dropped_bytes > 0) {
-      service.Recover(recovery, daemon.journal.path);
+    if (!recovery.records.empty() || recovery.dropped_bytes > 0 || recovery.first_record > 0) {
+      if (Status s = service.Recover(recovery, daemon.journal.path); !s.ok()) {
+        spdlog::critical("journal: {}", s.message());
+        return EX_IOERR;
+      }
     }
     service.SetJournal(&journal);
   }

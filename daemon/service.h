@@ -72,9 +72,13 @@ class Service {
   // publishing nothing but one complete correction at the end; status_t.recovery says so.
   // With daemon.journal.snapshot_every > 0 the worker also writes a snapshot of the state
   // (snapshot.h) to "<journal>.snapshot" every that many inputs; Recover uses it when it matches
-  // the journal and the options, and otherwise replays everything (and says why).
+  // the journal and the options, and otherwise replays everything (and says why). With
+  // daemon.journal.compact_mb > 0 the worker compacts the journal once it grows past that: the
+  // whole state to "<journal>.base", the journal started again after it. Recover starts from the
+  // base when there is one; it fails only when the journal was compacted and its base cannot be
+  // used (the inputs before the journal are gone).
   void SetJournal(Journal* journal);
-  void Recover(const JournalRecovery& recovery, const std::string& path);
+  Status Recover(const JournalRecovery& recovery, const std::string& path);
   // Worker thread (or after it stopped): writes a snapshot now (irrrd does at a clean stop).
   Status WriteSnapshot();
 

@@ -333,6 +333,11 @@ int Service::ProcessQueued(std::chrono::milliseconds wait) {
       spdlog::error("journal: {} (inputs are applied but not kept)", s.message());
       std::lock_guard<std::mutex> lock(st.stats_mutex);
       st.journal_error = s.message();
+    } else {
+      for (const Input& input : batch) {
+        int64_t& next = st.journaled_next[input.header().sender];
+        next = std::max(next, input.header().seq + 1);
+      }
     }
   }
   for (size_t k = 0; k < batch.size(); ++k) {
@@ -346,6 +351,8 @@ int Service::ProcessQueued(std::chrono::milliseconds wait) {
       st.SnapshotIfDue(records_before + static_cast<int64_t>(k) + 1, crc_after[k]);
     }
   }
+  // Every record journaled is applied now: where the journal may start again.
+  if (!batch.empty()) st.CompactIfDue();
   if (st.solution_requested.exchange(false)) st.PublishComplete();
   return static_cast<int>(batch.size());
 }

@@ -35,6 +35,7 @@
 #include "daemon/journal.h"
 #include "daemon/sequencer.h"
 #include "daemon/service.h"
+#include "daemon/snapshot.h"
 #include "daemon/stamp_merger.h"
 #include "daemon/wire.h"
 #include "irrr/correction_t.hpp"
@@ -113,9 +114,14 @@ struct Service::State {
   std::atomic<bool> replaying{false};
   // Off while the inputs a snapshot covers are fed again: their steps are in the snapshot.
   bool run_steps = true;
-  std::string snapshot_path;   // "" = no snapshots
-  int64_t snapshot_at = 0;     // journal records the last snapshot covers
-  int64_t snapshot_bytes = 0;  // the last snapshot body's size
+  std::string snapshot_path;     // "" = no snapshots
+  int64_t snapshot_at = 0;       // journal records the last snapshot covers
+  int64_t snapshot_bytes = 0;    // the last snapshot body's size
+  std::string base_path;         // "" = no compaction
+  int64_t compact_at_bytes = 0;  // the journal size that triggers the next compaction
+  // Worker: each sender's next seq after the journal's records (what a base holds, and what a
+  // restart resumes the sequencer from).
+  std::map<std::string, int64_t> journaled_next;
   // Worker: the steps' time since the last snapshot (journal.snapshot_after_s).
   double steps_s_since_snapshot = 0.0;
 
@@ -314,7 +320,7 @@ struct Service::State {
 
   // ---- Journal and snapshots (service_recovery.cc; snapshot.h) ----
 
-  // What a snapshot holds besides the engines' step states.
+  // What a snapshot holds besides the engines' step states (and a base's step part).
   struct Snapshot {
     std::string options;      // the irrr options it was decided under (JSON)
     int64_t records = 0;      // journal records it covers
@@ -345,13 +351,34 @@ struct Service::State {
                     std::string* why) const;
   // After the inputs the snapshot covers were fed without their steps.
   Status RestoreSnapshot(Snapshot snap);
-  // Feeds journal records [begin, end) through Apply (steps as `run_steps` says); counts the
-  // next seq of every sender in `senders_next`. Returns the records applied.
+  // Feeds journal records [begin, end) (indices into recovery.records) through Apply (steps as
+  // `run_steps` says), counting each sender's next seq in journaled_next. Returns the records
+  // applied.
   int64_t Replay(const JournalRecovery& recovery,
                  size_t begin,
                  size_t end,
-                 const std::string& path,
-                 std::map<std::string, int64_t>* senders_next);
+                 const std::string& path);
+
+  // ---- The base and compaction (service_recovery.cc) ----
+
+  // Worker, after a batch is applied: when the journal has grown past journal.compact_mb, the
+  // whole state goes to the base and the journal starts again after it (Journal::Compact).
+  void CompactIfDue();
+  // The whole state after the journal's `records` records, whose CRC is `crc`: the service's
+  // tables, each engine's inputs (SnapshotWriter::Inputs) and step state.
+  Status WriteBase(int64_t records, uint32_t crc);
+  template <class Pose>
+  void WriteEngine(const Engine<Pose>& engine, SnapshotWriter* w) const;
+  // Into this State, fresh: the base at `path`, if it fits `recovery` (its records end at or
+  // after the base's, and their CRC up to it is the base's) and the options. The tables and the
+  // engines' inputs are restored; the step part goes to `steps`, for RestoreSnapshot unless a
+  // later snapshot replaces it. False, with the reason in `why` ("" when there is no base).
+  bool LoadBase(const std::string& path,
+                const JournalRecovery& recovery,
+                Snapshot* steps,
+                std::string* why);
+  template <class Pose>
+  bool ReadEngine(SnapshotReader* r, Engine<Pose>* engine, IrrrStepState<Pose>* steps);
 
   std::string journal_error;     // the latest journal failure (stats_mutex)
   std::set<std::string> rivals;  // other daemons heard on our correction channel (stats_mutex)

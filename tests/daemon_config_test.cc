@@ -86,6 +86,10 @@ TEST_CASE("Daemon configuration errors name the key", "[daemon][config]") {
              Contains("used by another channel"));
   CHECK_THAT(error(R"({"daemon": {"journal": {"snapshot_after_s": -1}}})"),
              Contains("snapshot_after_s must be finite and >= 0"));
+  CHECK_THAT(error(R"({"daemon": {"journal": {"compact_mb": -1}}})"),
+             Contains("compact_mb must be finite and >= 0"));
+  CHECK_THAT(error(R"({"daemon": {"journal": {"keep_compacted": 1}}})"),
+             Contains("expected true or false"));
   CHECK_THAT(error(R"({"irrr": {"alpha": 2}})"), Contains("irrr"));
   CHECK_THAT(error(R"({"irrr": {"cluster_gap": "ten"}})"), Contains("irrr.cluster_gap"));
 }

@@ -6,9 +6,11 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cctype>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <functional>
 #include <limits>
 #include <map>
@@ -104,14 +106,19 @@ TEST_CASE("A service that dies mid-stream restarts from its journal and ends as 
           "[reliability][slow]") {
   const Case& c = IntelCase();
   // Without snapshots a restart re-runs every step; with them only the steps after the last one.
-  const int snapshot_every = GENERATE(0, 40);
-  INFO("daemon.journal.snapshot_every " << snapshot_every);
+  // Compacted (every 50 kB of the case's 0.8 MB of journal), a restart starts from the base.
+  const auto [snapshot_every, compact_mb] = GENERATE(std::make_pair(0, 0.0),
+                                                     std::make_pair(40, 0.0),
+                                                     std::make_pair(40, 0.05),
+                                                     std::make_pair(0, 0.05));
+  INFO("daemon.journal.snapshot_every " << snapshot_every << ", compact_mb " << compact_mb);
   const std::string dir = TestDirectory("reliability_restart");
   const std::string path = dir + "/journal";
-  std::remove(path.c_str());
-  std::remove((path + ".snapshot").c_str());
+  for (const char* suffix : {"", ".snapshot", ".base"}) std::remove((path + suffix).c_str());
   DaemonOptions daemon = FastResync();
   daemon.journal.snapshot_every = snapshot_every;
+  daemon.journal.compact_mb = compact_mb;
+  const double tolerance = snapshot_every > 0 || compact_mb > 0 ? kRestoredTolerance : 0.0;
   MessageSequencer producer("robot", daemon.channels);
   std::vector<MessageSequencer::Encoded> encoded;
   for (const ReplayMessage& m : c.messages) encoded.push_back(producer.Encode(m, NowUtime()));
@@ -123,6 +130,7 @@ TEST_CASE("A service that dies mid-stream restarts from its journal and ends as 
   std::sort(deaths.begin(), deaths.end());
   size_t next = 0;
   int restored_from_snapshot = 0;
+  int restored_from_base = 0;
   std::vector<HypothesisDecision> before;
   std::vector<Service::SessionEstimate> estimate_before;
   for (size_t death = 0; death <= deaths.size(); ++death) {
@@ -132,7 +140,7 @@ TEST_CASE("A service that dies mid-stream restarts from its journal and ends as 
     JournalRecovery recovery;
     REQUIRE(journal.Open(path, JournalSyncPolicy::kNever, &recovery).ok());
     if (death > 0) {
-      service.Recover(recovery, path);
+      REQUIRE(service.Recover(recovery, path).ok());
       const status_t status = service.CurrentStatus();
       CHECK(status.n_recovered == static_cast<int64_t>(recovery.records.size()));
       CHECK_THAT(status.recovery, Contains("replayed"));
@@ -140,8 +148,13 @@ TEST_CASE("A service that dies mid-stream restarts from its journal and ends as 
         CHECK_THAT(status.recovery, Contains("restored the snapshot"));
         ++restored_from_snapshot;
       }
-      CheckSameState(
-          service, before, estimate_before, snapshot_every > 0 ? kRestoredTolerance : 0.0);
+      if (recovery.first_record > 0) {
+        CHECK_THAT(status.recovery,
+                   Contains("restored the base of the first " +
+                            std::to_string(recovery.first_record) + " inputs"));
+        ++restored_from_base;
+      }
+      CheckSameState(service, before, estimate_before, tolerance);
       // It announces a complete solution.
       const std::vector<correction_t> corrections =
           sink.New<correction_t>(daemon.channels.correction);
@@ -182,8 +195,11 @@ TEST_CASE("A service that dies mid-stream restarts from its journal and ends as 
       before = service.Decisions();
       estimate_before = service.Estimates();
     }
+    // Compacted, the journal never holds much more than the bound (its last input or two).
+    if (compact_mb > 0) CHECK(journal.size_bytes() < compact_mb * 1e6 + 2000);
   }
-  if (snapshot_every > 0) CHECK(restored_from_snapshot >= 3);
+  if (snapshot_every > 0 && compact_mb == 0) CHECK(restored_from_snapshot >= 3);
+  if (compact_mb > 0) CHECK(restored_from_base >= 3);
 }
 
 // Runs the Intel case through a service with a journal at `path` under `journal_options`, input
@@ -197,8 +213,7 @@ void RunJournaled(const std::string& path,
                   std::vector<HypothesisDecision>* decisions,
                   std::vector<Service::SessionEstimate>* estimate) {
   const Case& c = IntelCase();
-  std::remove(path.c_str());
-  std::remove((path + ".snapshot").c_str());
+  for (const char* suffix : {"", ".snapshot", ".base"}) std::remove((path + suffix).c_str());
   DaemonOptions daemon = FastResync();
   daemon.journal = journal_options;
   RecordingSink sink;
@@ -241,7 +256,7 @@ std::string Restart(const std::string& path,
   Journal journal;
   JournalRecovery recovery;
   REQUIRE(journal.Open(path, JournalSyncPolicy::kNever, &recovery).ok());
-  service.Recover(recovery, path);
+  REQUIRE(service.Recover(recovery, path).ok());
   *decisions = service.Decisions();
   *estimate = service.Estimates();
   return service.CurrentStatus().recovery;
@@ -306,6 +321,105 @@ TEST_CASE("A restart from a snapshot runs no step it covers and rebuilds the sam
       differ_from_095 += recovered[k].decision.threshold != decisions[k].decision.threshold;
     }
     CHECK(differ_from_095 > 0);
+  }
+}
+
+TEST_CASE(
+    "A compacted journal restarts from its base, keeps its history when asked, and is "
+    "refused without its base",
+    "[reliability][slow]") {
+  const Case& c = IntelCase();
+  const std::string dir = TestDirectory("reliability_compact");
+  const std::string path = dir + "/journal";
+  for (const auto& entry : std::filesystem::directory_iterator(dir)) {
+    std::filesystem::remove(entry.path());
+  }
+  DaemonJournal options;
+  options.snapshot_every = 1 << 30;  // the base alone
+  options.snapshot_after_s = 0.0;
+  options.compact_mb = 0.1;
+  options.keep_compacted = true;
+  std::vector<HypothesisDecision> decisions;
+  std::vector<Service::SessionEstimate> estimate;
+  RunJournaled(path, options, /*batched=*/false, 0, &decisions, &estimate);
+  // The compacted records, kept as journal.<first>-<end>, in order.
+  std::vector<std::pair<int64_t, std::string>> archives;
+  for (const auto& entry : std::filesystem::directory_iterator(dir)) {
+    const std::string name = entry.path().filename().string();
+    if (name.rfind("journal.", 0) == 0 && std::isdigit(static_cast<unsigned char>(name[8]))) {
+      archives.emplace_back(std::stoll(name.substr(8)), entry.path().string());
+    }
+  }
+  std::sort(archives.begin(), archives.end());
+  REQUIRE(archives.size() >= 3);
+  JournalRecovery tail;
+  {
+    Journal journal;
+    REQUIRE(journal.Open(path, JournalSyncPolicy::kNever, &tail).ok());
+  }
+  REQUIRE(tail.first_record > 0);
+  std::vector<HypothesisDecision> recovered;
+  std::vector<Service::SessionEstimate> recovered_estimate;
+
+  SECTION("from the base and the journal after it: the same state") {
+    const std::string text = Restart(path, CaseOptions(), &recovered, &recovered_estimate);
+    CHECK_THAT(text,
+               Contains("restored the base of the first " + std::to_string(tail.first_record) +
+                        " inputs, then replayed " + std::to_string(tail.records.size())));
+    CheckSameState(recovered, recovered_estimate, decisions, estimate, kRestoredTolerance);
+  }
+  SECTION("the archives and the journal hold every input: replayed whole, the same state") {
+    const std::string whole = dir + "/whole";
+    std::remove(whole.c_str());
+    Journal journal;
+    JournalRecovery none;
+    REQUIRE(journal.Open(whole, JournalSyncPolicy::kNever, &none).ok());
+    int64_t next = 0;
+    for (const auto& [first, file] : archives) {
+      INFO(file);
+      Journal archive;
+      JournalRecovery part;
+      REQUIRE(archive.Open(file, JournalSyncPolicy::kNever, &part).ok());
+      CHECK(part.first_record == next);
+      REQUIRE(journal.Append(part.records).ok());
+      next = archive.records();
+    }
+    CHECK(tail.first_record == next);
+    REQUIRE(journal.Append(tail.records).ok());
+    CHECK(journal.records() == static_cast<int64_t>(c.messages.size()));
+    const std::string text = Restart(whole, CaseOptions(), &recovered, &recovered_estimate);
+    CHECK_THAT(text,
+               !Contains("base") && Contains("replayed " + std::to_string(c.messages.size())));
+    CheckSameState(recovered, recovered_estimate, decisions, estimate, 0.0);
+  }
+  SECTION("a crash between the base and the journal's new start: the base, nothing replayed") {
+    // The last compaction's archive is the journal as it was when its base was written.
+    std::filesystem::copy_file(
+        archives.back().second, path, std::filesystem::copy_options::overwrite_existing);
+    const std::string text = Restart(path, CaseOptions(), &recovered, &recovered_estimate);
+    CHECK_THAT(text,
+               Contains("restored the base of the first " + std::to_string(tail.first_record) +
+                        " inputs, then replayed 0 inputs"));
+    CHECK(!recovered.empty());
+    CHECK(recovered.size() <= decisions.size());
+  }
+  SECTION("without its base, or with a corrupt one, the journal is refused with the reason") {
+    const bool corrupt = GENERATE(false, true);
+    if (corrupt) {
+      FlipByte(path + ".base", 100);
+    } else {
+      std::remove((path + ".base").c_str());
+    }
+    RecordingSink sink;
+    Service service(FastResync(), CaseOptions(), &sink);
+    Journal journal;
+    JournalRecovery recovery;
+    REQUIRE(journal.Open(path, JournalSyncPolicy::kNever, &recovery).ok());
+    const Status s = service.Recover(recovery, path);
+    REQUIRE(!s.ok());
+    CHECK_THAT(s.message(),
+               Contains("starts at input " + std::to_string(tail.first_record)) &&
+                   Contains(corrupt ? "fails its CRC" : "missing"));
   }
 }
 

@@ -82,6 +82,8 @@ void VisitFields(DaemonJournal& journal, Visitor& visit) {
   visit("fsync", journal.fsync);
   visit("snapshot_every", journal.snapshot_every);
   visit("snapshot_after_s", journal.snapshot_after_s);
+  visit("compact_mb", journal.compact_mb);
+  visit("keep_compacted", journal.keep_compacted);
 }
 
 template <class Visitor>
@@ -416,6 +418,9 @@ Status DaemonOptions::Validate() const {
   if (journal.snapshot_every < 0) return Status::Error("journal: snapshot_every must be >= 0");
   if (!(journal.snapshot_after_s >= 0.0 && std::isfinite(journal.snapshot_after_s))) {
     return Status::Error("journal: snapshot_after_s must be finite and >= 0");
+  }
+  if (!(journal.compact_mb >= 0.0 && std::isfinite(journal.compact_mb))) {
+    return Status::Error("journal: compact_mb must be finite and >= 0");
   }
   if (merge.window_ms < 0) return Status::Error("merge: window_ms must be >= 0");
   for (const std::string& sender : merge.senders) {

@@ -96,6 +96,14 @@ struct DaemonJournal {
   // seconds: a restart re-runs those steps, so this bounds its time on a large graph whose steps
   // are slow; 0 = by input count only.
   double snapshot_after_s = 2.0;
+  // Once the journal holds more than this many megabytes, the worker writes the whole state
+  // ("<path>.base") and starts the journal again, empty: the journal stays bounded, and a restart
+  // reads the base and replays only the journal after it. 0 = never (the journal keeps every
+  // input since the map began).
+  double compact_mb = 64.0;
+  // With compaction: the journal's old records are kept as "<path>.<first>-<end>" (records
+  // numbered from the map's first input) instead of deleted: the inputs' whole history.
+  bool keep_compacted = false;
 };
 
 // The daemon's own settings (the "daemon" object of config/irrrd.json).
