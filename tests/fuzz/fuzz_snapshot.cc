@@ -11,32 +11,16 @@
 
 #include "core/irrr.h"
 #include "daemon/snapshot.h"
+#include "tests/fuzz/two_sessions.h"
 
 namespace {
 
-// A small Irrr fed inputs without running their steps, as a restart has it: two sessions, a few
-// poses, two loops (one cluster per session pair).
+// The two-session graph fed without running its steps, as a restart has it.
 template <class Pose>
 irrr::Irrr<Pose>& Fed() {
   static irrr::Irrr<Pose>* irrr = [] {
-    irrr::IrrrOptions options;
-    options.cluster_gap = 2.0;
-    auto* fed = new irrr::Irrr<Pose>(options);
-    int a = -1;
-    int b = -1;
-    fed->AddSession(1, &a);
-    fed->AddSession(2, &b);
-    const typename Pose::Matrix information = Pose::Matrix::Identity();
-    const Pose step = Pose::Exp(Pose::Tangent::Constant(0.1));
-    std::vector<int> va(5);
-    std::vector<int> vb(5);
-    for (int k = 0; k < 5; ++k) {
-      fed->AddPose(a, k, k, k == 0 ? nullptr : &step, k == 0 ? nullptr : &information, &va[k]);
-      fed->AddPose(b, 10 + k, k, k == 0 ? nullptr : &step, k == 0 ? nullptr : &information, &vb[k]);
-    }
-    fed->AddLoop(va[4], va[0], Pose(), information, nullptr);
-    fed->AddLoop(vb[3], va[1], Pose(), information, nullptr);
-    fed->Flush();
+    auto* fed = new irrr::Irrr<Pose>(irrr::fuzz::TwoSessionsOptions());
+    irrr::fuzz::FeedTwoSessions(fed);
     return fed;
   }();
   return *irrr;
@@ -57,14 +41,12 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     return 0;
   }
   // Whatever decoded either fits the Irrr or is refused with a reason.
-  const bool restored = Fed<irrr::Pose2>().RestoreStepState(se2).ok() &&
-                        Fed<irrr::Pose3>().RestoreStepState(se3).ok();
-  (void)restored;
+  if (Fed<irrr::Pose2>().RestoreStepState(se2).ok()) {
+    static_cast<void>(Fed<irrr::Pose3>().RestoreStepState(se3));
+  }
   // Inputs: each one the fresh Irrr takes, or refuses (the feed then stops).
-  irrr::IrrrOptions options;
-  options.cluster_gap = 2.0;
-  irrr::Irrr<irrr::Pose2> fresh2(options);
-  irrr::Irrr<irrr::Pose3> fresh3(options);
+  irrr::Irrr<irrr::Pose2> fresh2(irrr::fuzz::TwoSessionsOptions());
+  irrr::Irrr<irrr::Pose3> fresh3(irrr::fuzz::TwoSessionsOptions());
   if (reader.FeedInputs(&fresh2)) reader.FeedInputs(&fresh3);
   return 0;
 }
