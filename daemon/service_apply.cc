@@ -305,6 +305,10 @@ void Service::State::RunSteps(Engine<Pose>& engine, int64_t closed_utime) {
   }
 }
 
+// Also run when a base's inputs are decided again (service_recovery.cc).
+template void Service::State::RunSteps(Engine<Pose2>& engine, int64_t closed_utime);
+template void Service::State::RunSteps(Engine<Pose3>& engine, int64_t closed_utime);
+
 int Service::ProcessQueued(std::chrono::milliseconds wait) {
   State& st = *state_;
   // The most inputs taken (and journaled) at once: a crash leaves at most these journaled but not

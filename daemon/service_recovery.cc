@@ -4,6 +4,7 @@
 // stop, the base when the journal outgrows daemon.journal.compact_mb (service_state.h).
 
 #include <chrono>
+#include <functional>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -185,8 +186,9 @@ Status Service::Recover(const JournalRecovery& recovery, const std::string& path
   // records before it are fed no more.
   State::Snapshot base_steps;
   size_t base_from = 0;
+  bool decided_again = false;
   auto load_base = [&](std::string* why) {
-    if (!state_->LoadBase(base_path, recovery, &base_steps, why)) return false;
+    if (!state_->LoadBase(base_path, recovery, &base_steps, &decided_again, why)) return false;
     base_from = static_cast<size_t>(base_steps.records - recovery.first_record);
     return true;
   };
@@ -208,7 +210,10 @@ Status Service::Recover(const JournalRecovery& recovery, const std::string& path
     }
   }
   if (has_base) {
-    note = "restored the base of the first " + std::to_string(base_steps.records) + " inputs, ";
+    note = (decided_again ? "decided the inputs of the base (taken under other irrr options) "
+                            "again, the first "
+                          : "restored the base of the first ") +
+           std::to_string(base_steps.records) + " inputs, ";
   }
   // A snapshot at or after the base spares the steps of the inputs it covers: they are fed
   // without them, then it is restored; only the inputs after it run their steps.
@@ -241,7 +246,7 @@ Status Service::Recover(const JournalRecovery& recovery, const std::string& path
     if (!why.empty()) spdlog::warn("snapshot not used: {}", why);
   }
   State& st = *state_;
-  if (has_base && !restored) {
+  if (has_base && !restored && !decided_again) {
     if (Status s = st.RestoreSnapshot(std::move(base_steps)); !s.ok()) {
       return Status::Error(base_path + ": its step state does not fit its inputs: " + s.message());
     }
@@ -352,7 +357,8 @@ Status Service::State::WriteBase(int64_t records, uint32_t crc) {
 template <class Pose>
 bool Service::State::ReadEngine(SnapshotReader* r,
                                 Engine<Pose>* engine,
-                                IrrrStepState<Pose>* steps) {
+                                IrrrStepState<Pose>* steps,
+                                bool run_steps) {
   int64_t n = 0;
   if (!r->I64(&n) || n < 0 || n > daemon.limits.max_sessions) return false;
   engine->sessions.resize(static_cast<size_t>(n));
@@ -390,7 +396,16 @@ bool Service::State::ReadEngine(SnapshotReader* r,
     h.key_to = v[5];
     engine->hypothesis_of_edge.emplace(static_cast<int>(edge), h);
   }
-  if (!r->FeedInputs(&engine->irrr) || !r->StepState(steps)) return false;
+  std::function<void()> steps_due;
+  if (run_steps) {
+    // Decided again from the start: each session in its own map, as it arrived.
+    engine->anchor.resize(engine->sessions.size());
+    for (size_t s = 0; s < engine->sessions.size(); ++s) {
+      engine->anchor[s] = engine->sessions[s].order;
+    }
+    steps_due = [this, engine] { RunSteps(*engine, 0); };
+  }
+  if (!r->FeedInputs(&engine->irrr, steps_due) || !r->StepState(steps)) return false;
   // What the tables name must be in the graph the inputs built.
   const PoseGraph<Pose>& graph = engine->irrr.graph();
   if (static_cast<int>(engine->sessions.size()) != graph.num_sessions() ||
@@ -422,6 +437,7 @@ bool Service::State::ReadEngine(SnapshotReader* r,
 bool Service::State::LoadBase(const std::string& path,
                               const JournalRecovery& recovery,
                               Snapshot* steps,
+                              bool* decided_again,
                               std::string* why) {
   std::vector<uint8_t> body;
   bool exists = false;
@@ -435,10 +451,7 @@ bool Service::State::LoadBase(const std::string& path,
     *why = path + ": its body does not decode";
     return false;
   }
-  if (snap.options != OptionsText()) {
-    *why = path + " was taken under other irrr options";
-    return false;
-  }
+  *decided_again = snap.options != OptionsText();
   if (!Covers(recovery, snap.records, snap.journal_crc)) {
     *why = path + " holds the first " + std::to_string(snap.records) +
            " inputs, which do not end in the journal (records " +
@@ -459,7 +472,11 @@ bool Service::State::LoadBase(const std::string& path,
       if (!r.String(&sender) || !r.I64(&next)) return false;
       journaled_next[sender] = next;
     }
-    if (!ReadEngine(&r, &se2, &snap.se2) || !ReadEngine(&r, &se3, &snap.se3)) return false;
+    // The base's steps ran under other options: its inputs' steps run again under these.
+    if (!ReadEngine(&r, &se2, &snap.se2, *decided_again) ||
+        !ReadEngine(&r, &se3, &snap.se3, *decided_again)) {
+      return false;
+    }
     snap.anchor_se2 = se2.anchor;
     snap.anchor_se3 = se3.anchor;
     num_sessions = static_cast<int>(se2.sessions.size() + se3.sessions.size());

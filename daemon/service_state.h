@@ -370,15 +370,21 @@ struct Service::State {
   template <class Pose>
   void WriteEngine(const Engine<Pose>& engine, SnapshotWriter* w) const;
   // Into this State, fresh: the base at `path`, if it fits `recovery` (its records end at or
-  // after the base's, and their CRC up to it is the base's) and the options. The tables and the
-  // engines' inputs are restored; the step part goes to `steps`, for RestoreSnapshot unless a
-  // later snapshot replaces it. False, with the reason in `why` ("" when there is no base).
+  // after the base's, and their CRC up to it is the base's). The tables and the engines' inputs
+  // are restored; the step part goes to `steps`, for RestoreSnapshot unless a later snapshot
+  // replaces it. A base taken under other irrr options has its inputs decided again, every step
+  // run (`*decided_again`; its step part is then of no use). False, with the reason in `why` (""
+  // when there is no base).
   bool LoadBase(const std::string& path,
                 const JournalRecovery& recovery,
                 Snapshot* steps,
+                bool* decided_again,
                 std::string* why);
   template <class Pose>
-  bool ReadEngine(SnapshotReader* r, Engine<Pose>* engine, IrrrStepState<Pose>* steps);
+  bool ReadEngine(SnapshotReader* r,
+                  Engine<Pose>* engine,
+                  IrrrStepState<Pose>* steps,
+                  bool run_steps);
 
   std::string journal_error;     // the latest journal failure (stats_mutex)
   std::set<std::string> rivals;  // other daemons heard on our correction channel (stats_mutex)

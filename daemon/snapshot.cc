@@ -305,7 +305,7 @@ bool SnapshotReader::InformationValue(typename Pose::Matrix* information) {
 }
 
 template <class Pose>
-bool SnapshotReader::FeedInputs(Irrr<Pose>* irrr) {
+bool SnapshotReader::FeedInputs(Irrr<Pose>* irrr, const std::function<void()>& after_each) {
   size_t n = 0;
   if (!Count(8, &n)) return false;
   for (size_t k = 0; k < n; ++k) {
@@ -368,6 +368,7 @@ bool SnapshotReader::FeedInputs(Irrr<Pose>* irrr) {
         return !(failed_ = true);
     }
     if (!fed.ok()) return !(failed_ = true);
+    if (after_each) after_each();
   }
   return true;
 }
@@ -450,7 +451,7 @@ template bool SnapshotReader::StepState(IrrrStepState<Pose2>*);
 template bool SnapshotReader::StepState(IrrrStepState<Pose3>*);
 template void SnapshotWriter::Inputs(const Irrr<Pose2>&);
 template void SnapshotWriter::Inputs(const Irrr<Pose3>&);
-template bool SnapshotReader::FeedInputs(Irrr<Pose2>*);
-template bool SnapshotReader::FeedInputs(Irrr<Pose3>*);
+template bool SnapshotReader::FeedInputs(Irrr<Pose2>*, const std::function<void()>&);
+template bool SnapshotReader::FeedInputs(Irrr<Pose3>*, const std::function<void()>&);
 
 }  // namespace irrr

@@ -18,6 +18,7 @@
 // besides its step state, and the service's own tables.
 
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -64,10 +65,11 @@ class SnapshotReader {
   bool PoseValue(Pose* pose);
   template <class Pose>
   bool StepState(IrrrStepState<Pose>* state);
-  // Feeds the inputs SnapshotWriter::Inputs wrote to `irrr`, fresh (nothing fed yet), without
-  // running steps. False when they do not decode or `irrr` refuses one (it is then unusable).
+  // Feeds the inputs SnapshotWriter::Inputs wrote to `irrr`, fresh (nothing fed yet), calling
+  // `after_each` (if any: the steps that became due) after each. False when they do not decode or
+  // `irrr` refuses one (it is then unusable).
   template <class Pose>
-  bool FeedInputs(Irrr<Pose>* irrr);
+  bool FeedInputs(Irrr<Pose>* irrr, const std::function<void()>& after_each = nullptr);
 
   bool at_end() const { return at_ == body_.size(); }
 
@@ -110,8 +112,8 @@ extern template bool SnapshotReader::StepState(IrrrStepState<Pose2>*);
 extern template bool SnapshotReader::StepState(IrrrStepState<Pose3>*);
 extern template void SnapshotWriter::Inputs(const Irrr<Pose2>&);
 extern template void SnapshotWriter::Inputs(const Irrr<Pose3>&);
-extern template bool SnapshotReader::FeedInputs(Irrr<Pose2>*);
-extern template bool SnapshotReader::FeedInputs(Irrr<Pose3>*);
+extern template bool SnapshotReader::FeedInputs(Irrr<Pose2>*, const std::function<void()>&);
+extern template bool SnapshotReader::FeedInputs(Irrr<Pose3>*, const std::function<void()>&);
 
 }  // namespace irrr
 

@@ -403,6 +403,24 @@ TEST_CASE(
     CHECK(!recovered.empty());
     CHECK(recovered.size() <= decisions.size());
   }
+  SECTION("under other irrr options the base's inputs are decided again") {
+    IrrrOptions other = CaseOptions();
+    other.alpha = 0.99;
+    const std::string text = Restart(path, other, &recovered, &recovered_estimate);
+    CHECK_THAT(text, Contains("decided the inputs of the base (taken under other irrr options)"));
+    // Decided under alpha 0.99: what RunIncrementalIrrr says with those options.
+    const std::vector<LoopDecision> expected =
+        RunIncrementalIrrr<Pose2>(c.graph, other, nullptr, nullptr);
+    REQUIRE(recovered.size() == decisions.size());
+    int differ_from_095 = 0;
+    for (size_t k = 0; k < recovered.size(); ++k) {
+      const int edge = c.graph_edge_of_file_edge[recovered[k].hypothesis_id];
+      CHECK(recovered[k].decision.state == expected[edge].state);
+      CHECK(recovered[k].decision.step == expected[edge].step);
+      differ_from_095 += recovered[k].decision.threshold != decisions[k].decision.threshold;
+    }
+    CHECK(differ_from_095 > 0);
+  }
   SECTION("without its base, or with a corrupt one, the journal is refused with the reason") {
     const bool corrupt = GENERATE(false, true);
     if (corrupt) {
