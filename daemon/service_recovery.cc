@@ -136,8 +136,19 @@ void Service::SetJournal(Journal* journal) {
   state_->base_path =
       journal != nullptr && state_->daemon.journal.compact_mb > 0 ? journal->path() + ".base" : "";
   state_->compact_at_bytes = static_cast<int64_t>(state_->daemon.journal.compact_mb * 1e6);
+  if (journal == nullptr) return;
+  // A compaction a crash interrupted (the base written, the journal not started again after it):
+  // finished, so that the journal never holds records the base covers.
+  State& st = *state_;
+  if (st.base_at > journal->first_record() && st.base_at == journal->records()) {
+    if (Status s = journal->Compact(st.ArchiveName()); !s.ok()) {
+      spdlog::error("journal compaction: {}", s.message());
+    } else {
+      spdlog::info("journal {}: the compaction at input {} finished", journal->path(), st.base_at);
+    }
+  }
   // A journal recovered whole (every record applied) that is over the bound already.
-  state_->CompactIfDue();
+  st.CompactIfDue();
 }
 
 Status Service::WriteSnapshot() {
@@ -190,6 +201,7 @@ Status Service::Recover(const JournalRecovery& recovery, const std::string& path
   auto load_base = [&](std::string* why) {
     if (!state_->LoadBase(base_path, recovery, &base_steps, &decided_again, why)) return false;
     base_from = static_cast<size_t>(base_steps.records - recovery.first_record);
+    state_->base_at = base_steps.records;
     return true;
   };
   state_->replaying = true;
@@ -540,6 +552,12 @@ bool Service::State::LoadBase(const std::string& path,
   return true;
 }
 
+std::string Service::State::ArchiveName() const {
+  if (!daemon.journal.keep_compacted) return "";
+  return journal->path() + "." + std::to_string(journal->first_record()) + "-" +
+         std::to_string(journal->records());
+}
+
 void Service::State::CompactIfDue() {
   if (journal == nullptr || base_path.empty() || journal->size_bytes() < compact_at_bytes) return;
   {
@@ -547,13 +565,9 @@ void Service::State::CompactIfDue() {
     if (!journal_error.empty()) return;  // the journal lacks inputs: no base would match it
   }
   const auto start = std::chrono::steady_clock::now();
-  const int64_t first = journal->first_record();
   const int64_t records = journal->records();
   const double journal_mb = 1e-6 * static_cast<double>(journal->size_bytes());
-  const std::string archive =
-      daemon.journal.keep_compacted
-          ? journal->path() + "." + std::to_string(first) + "-" + std::to_string(records)
-          : "";
+  const std::string archive = ArchiveName();
   Status s = WriteBase(records, journal->crc());
   if (s.ok()) s = journal->Compact(archive);
   if (!s.ok()) {
@@ -564,6 +578,7 @@ void Service::State::CompactIfDue() {
     return;
   }
   // The base holds the step state too.
+  base_at = records;
   snapshot_at = records;
   steps_s_since_snapshot = 0.0;
   spdlog::info(

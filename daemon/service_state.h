@@ -119,6 +119,7 @@ struct Service::State {
   int64_t snapshot_bytes = 0;    // the last snapshot body's size
   std::string base_path;         // "" = no compaction
   int64_t compact_at_bytes = 0;  // the journal size that triggers the next compaction
+  int64_t base_at = 0;           // journal records the base covers (0: none)
   // Worker: each sender's next seq after the journal's records (what a base holds, and what a
   // restart resumes the sequencer from).
   std::map<std::string, int64_t> journaled_next;
@@ -364,6 +365,9 @@ struct Service::State {
   // Worker, after a batch is applied: when the journal has grown past journal.compact_mb, the
   // whole state goes to the base and the journal starts again after it (Journal::Compact).
   void CompactIfDue();
+  // With journal.keep_compacted, the name the journal's records are kept under when it is
+  // compacted now ("<journal>.<first>-<end>"); otherwise "".
+  std::string ArchiveName() const;
   // The whole state after the journal's `records` records, whose CRC is `crc`: the service's
   // tables, each engine's inputs (SnapshotWriter::Inputs) and step state.
   Status WriteBase(int64_t records, uint32_t crc);

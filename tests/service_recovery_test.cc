@@ -402,6 +402,25 @@ TEST_CASE(
                         " inputs, then replayed 0 inputs"));
     CHECK(!recovered.empty());
     CHECK(recovered.size() <= decisions.size());
+    // Given the journal, the service finishes the compaction: the journal starts after the base,
+    // and its records are kept under the same name as before.
+    DaemonOptions daemon = FastResync();
+    daemon.journal = options;
+    RecordingSink sink;
+    Service service(daemon, CaseOptions(), &sink);
+    Journal journal;
+    JournalRecovery recovery;
+    REQUIRE(journal.Open(path, JournalSyncPolicy::kNever, &recovery).ok());
+    REQUIRE(service.Recover(recovery, path).ok());
+    service.SetJournal(&journal);
+    CHECK(journal.first_record() == tail.first_record);
+    CHECK(journal.size_bytes() == 20);
+    int kept = 0;
+    for (const auto& entry : std::filesystem::directory_iterator(dir)) {
+      const std::string name = entry.path().filename().string();
+      kept += name.rfind("journal.", 0) == 0 && std::isdigit(static_cast<unsigned char>(name[8]));
+    }
+    CHECK(kept == static_cast<int>(archives.size()));
   }
   SECTION("under other irrr options the base's inputs are decided again") {
     IrrrOptions other = CaseOptions();
