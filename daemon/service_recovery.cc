@@ -29,6 +29,12 @@ bool Covers(const JournalRecovery& journal, int64_t records, int64_t crc) {
          JournalCrc(journal, records) == static_cast<uint32_t>(crc);
 }
 
+// "records F to E": what the journal holds, for the reasons a snapshot or base is not used.
+std::string RecordRange(const JournalRecovery& journal) {
+  return "records " + std::to_string(journal.first_record) + " to " +
+         std::to_string(journal.first_record + static_cast<int64_t>(journal.records.size()));
+}
+
 }  // namespace
 
 std::string Service::State::OptionsText() const { return IrrrOptionsToJson(options).dump(); }
@@ -81,10 +87,7 @@ bool Service::State::LoadSnapshot(const std::string& path,
   }
   if (!Covers(recovery, snap.records, snap.journal_crc)) {
     *why = path + " covers " + std::to_string(snap.records) +
-           " journal records that are not those of the journal (records " +
-           std::to_string(recovery.first_record) + " to " +
-           std::to_string(recovery.first_record + static_cast<int64_t>(recovery.records.size())) +
-           ")";
+           " journal records that are not those of the journal (" + RecordRange(recovery) + ")";
     return false;
   }
   return true;
@@ -263,6 +266,8 @@ Status Service::Recover(const JournalRecovery& recovery, const std::string& path
       return Status::Error(base_path + ": its step state does not fit its inputs: " + s.message());
     }
   }
+  const double restored_s =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   const int64_t applied = st.Replay(recovery, from, recovery.records.size(), path);
   st.replaying = false;
   {
@@ -273,6 +278,7 @@ Status Service::Recover(const JournalRecovery& recovery, const std::string& path
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   std::string text = (note.empty() ? "" : note + "then ") + "replayed " + std::to_string(applied) +
                      " inputs from " + path + " in " + fmt::format("{:.2f}", seconds) + " s";
+  if (!note.empty()) text += fmt::format(" ({:.2f} s before the steps)", restored_s);
   if (recovery.dropped_bytes > 0) {
     text += "; dropped " + std::to_string(recovery.dropped_bytes) + " bytes at its end (" +
             recovery.dropped_reason + ")";
@@ -466,10 +472,7 @@ bool Service::State::LoadBase(const std::string& path,
   *decided_again = snap.options != OptionsText();
   if (!Covers(recovery, snap.records, snap.journal_crc)) {
     *why = path + " holds the first " + std::to_string(snap.records) +
-           " inputs, which do not end in the journal (records " +
-           std::to_string(recovery.first_record) + " to " +
-           std::to_string(recovery.first_record + static_cast<int64_t>(recovery.records.size())) +
-           ")";
+           " inputs, which do not end in the journal (" + RecordRange(recovery) + ")";
     return false;
   }
   auto decoded = [&] {

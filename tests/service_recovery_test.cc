@@ -262,6 +262,25 @@ std::string Restart(const std::string& path,
   return service.CurrentStatus().recovery;
 }
 
+// Decided under `other` (alpha 0.99): what RunIncrementalIrrr says of the Intel case with those
+// options, and thresholds other than those `decisions` were made at.
+void CheckDecidedUnder(const IrrrOptions& other,
+                       const std::vector<HypothesisDecision>& recovered,
+                       const std::vector<HypothesisDecision>& decisions) {
+  const Case& c = IntelCase();
+  const std::vector<LoopDecision> expected =
+      RunIncrementalIrrr<Pose2>(c.graph, other, nullptr, nullptr);
+  REQUIRE(recovered.size() == decisions.size());
+  int differ_from_095 = 0;
+  for (size_t k = 0; k < recovered.size(); ++k) {
+    const int edge = c.graph_edge_of_file_edge[recovered[k].hypothesis_id];
+    CHECK(recovered[k].decision.state == expected[edge].state);
+    CHECK(recovered[k].decision.step == expected[edge].step);
+    differ_from_095 += recovered[k].decision.threshold != decisions[k].decision.threshold;
+  }
+  CHECK(differ_from_095 > 0);
+}
+
 TEST_CASE("A restart from a snapshot runs no step it covers and rebuilds the same state",
           "[reliability][slow]") {
   const Case& c = IntelCase();
@@ -309,18 +328,7 @@ TEST_CASE("A restart from a snapshot runs no step it covers and rebuilds the sam
     other.alpha = 0.99;
     const std::string text = Restart(path, other, &recovered, &recovered_estimate);
     CHECK_THAT(text, !Contains("restored the snapshot"));
-    // Decided under alpha 0.99: what RunIncrementalIrrr says with those options.
-    const std::vector<LoopDecision> expected =
-        RunIncrementalIrrr<Pose2>(c.graph, other, nullptr, nullptr);
-    REQUIRE(recovered.size() == decisions.size());
-    int differ_from_095 = 0;
-    for (size_t k = 0; k < recovered.size(); ++k) {
-      const int edge = c.graph_edge_of_file_edge[recovered[k].hypothesis_id];
-      CHECK(recovered[k].decision.state == expected[edge].state);
-      CHECK(recovered[k].decision.step == expected[edge].step);
-      differ_from_095 += recovered[k].decision.threshold != decisions[k].decision.threshold;
-    }
-    CHECK(differ_from_095 > 0);
+    CheckDecidedUnder(other, recovered, decisions);
   }
 }
 
@@ -427,18 +435,7 @@ TEST_CASE(
     other.alpha = 0.99;
     const std::string text = Restart(path, other, &recovered, &recovered_estimate);
     CHECK_THAT(text, Contains("decided the inputs of the base (taken under other irrr options)"));
-    // Decided under alpha 0.99: what RunIncrementalIrrr says with those options.
-    const std::vector<LoopDecision> expected =
-        RunIncrementalIrrr<Pose2>(c.graph, other, nullptr, nullptr);
-    REQUIRE(recovered.size() == decisions.size());
-    int differ_from_095 = 0;
-    for (size_t k = 0; k < recovered.size(); ++k) {
-      const int edge = c.graph_edge_of_file_edge[recovered[k].hypothesis_id];
-      CHECK(recovered[k].decision.state == expected[edge].state);
-      CHECK(recovered[k].decision.step == expected[edge].step);
-      differ_from_095 += recovered[k].decision.threshold != decisions[k].decision.threshold;
-    }
-    CHECK(differ_from_095 > 0);
+    CheckDecidedUnder(other, recovered, decisions);
   }
   SECTION("without its base, or with a corrupt one, the journal is refused with the reason") {
     const bool corrupt = GENERATE(false, true);
