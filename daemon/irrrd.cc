@@ -9,7 +9,8 @@
 // and a start replays it first: after a crash, kill -9 included, the daemon has the state it had,
 // and producers resend what it lost meanwhile (IRRR_RESYNC). Snapshots of the state next to it
 // (every daemon.journal.snapshot_every inputs, and at a clean stop) spare a restart the steps
-// they cover.
+// they cover; past daemon.journal.compact_mb the whole state goes to a base and the journal
+// starts again after it.
 // Threads: the main thread receives (LCM and signals, through poll) and publishes the status; a
 // worker applies the inputs and runs the iRRR steps, so that receiving never waits for an
 // optimization. SIGTERM and SIGINT: stop receiving, apply what was received, publish a STOPPING
