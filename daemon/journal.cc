@@ -60,6 +60,17 @@ Status WriteAll(int fd, const uint8_t* data, size_t size) {
 
 }  // namespace
 
+void SyncDirectoryOf(const std::string& path) {
+  const size_t slash = path.rfind('/');
+  const std::string dir =
+      slash == std::string::npos ? "." : (slash == 0 ? "/" : path.substr(0, slash));
+  const int fd = open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (fd >= 0) {
+    fsync(fd);
+    close(fd);
+  }
+}
+
 std::vector<uint8_t> EncodeJournalRecord(const JournalRecord& record) {
   std::vector<uint8_t> payload;
   payload.reserve(kPayloadHeader + record.bytes.size());
@@ -204,36 +215,22 @@ Status Journal::Compact(const std::string& archive) {
   PutU32(crc_, &header);
   const int fd = open(tmp.c_str(), O_RDWR | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
   if (fd < 0) return Errno(tmp);
-  Status s = WriteAll(fd, header.data(), header.size());
-  if (s.ok() && sync && fdatasync(fd) != 0) s = Errno(tmp + ": fdatasync");
-  if (!s.ok()) {
+  auto fail = [&](const Status& s) {
     close(fd);
     unlink(tmp.c_str());
     return s;
-  }
+  };
+  if (Status s = WriteAll(fd, header.data(), header.size()); !s.ok()) return fail(s);
+  if (sync && fdatasync(fd) != 0) return fail(Errno(tmp + ": fdatasync"));
   // The old file stays whole under the archive's name (a second name for it, nothing copied).
   if (!archive.empty()) {
     unlink(archive.c_str());
     if (link(path_.c_str(), archive.c_str()) != 0) {
-      close(fd);
-      unlink(tmp.c_str());
-      return Errno("link " + path_ + " " + archive);
+      return fail(Errno("link " + path_ + " " + archive));
     }
   }
-  if (rename(tmp.c_str(), path_.c_str()) != 0) {
-    close(fd);
-    unlink(tmp.c_str());
-    return Errno("rename " + tmp + " " + path_);
-  }
-  if (sync) {
-    const size_t slash = path_.find_last_of('/');
-    const std::string dir = slash == std::string::npos ? "." : path_.substr(0, slash + 1);
-    const int dir_fd = open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-    if (dir_fd >= 0) {
-      fsync(dir_fd);
-      close(dir_fd);
-    }
-  }
+  if (rename(tmp.c_str(), path_.c_str()) != 0) return fail(Errno("rename " + tmp + " " + path_));
+  if (sync) SyncDirectoryOf(path_);
   close(fd_);
   fd_ = fd;
   size_ = header_bytes_ = static_cast<int64_t>(header.size());

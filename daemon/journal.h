@@ -91,6 +91,10 @@ class Journal {
   uint32_t crc_ = 0;
 };
 
+// Makes a rename into `path`'s directory reach the disk (fsyncs the directory; a failure to open
+// it is ignored: the rename stays atomic for a process crash).
+void SyncDirectoryOf(const std::string& path);
+
 // Encodes one record (length, CRC, payload), and decodes the records at the start of `data`
 // (stops at the first incomplete or corrupt one; `*consumed` = bytes of the valid records).
 std::vector<uint8_t> EncodeJournalRecord(const JournalRecord& record);

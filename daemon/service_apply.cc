@@ -338,10 +338,7 @@ int Service::ProcessQueued(std::chrono::milliseconds wait) {
       std::lock_guard<std::mutex> lock(st.stats_mutex);
       st.journal_error = s.message();
     } else {
-      for (const Input& input : batch) {
-        int64_t& next = st.journaled_next[input.header().sender];
-        next = std::max(next, input.header().seq + 1);
-      }
+      for (const Input& input : batch) st.Journaled(input);
     }
   }
   for (size_t k = 0; k < batch.size(); ++k) {

@@ -39,16 +39,23 @@ std::string RecordRange(const JournalRecovery& journal) {
 
 std::string Service::State::OptionsText() const { return IrrrOptionsToJson(options).dump(); }
 
+void Service::State::WriteHeader(int64_t records, uint32_t crc, SnapshotWriter* w) const {
+  w->String(OptionsText());
+  w->I64(records);
+  w->I64(crc);
+  w->I64(solution_id);
+  std::lock_guard<std::mutex> lock(stats_mutex);
+  w->I64(stats.n_steps);
+}
+
+bool Service::State::ReadHeader(SnapshotReader* r, Snapshot* snap) {
+  return r->String(&snap->options) && r->I64(&snap->records) && r->I64(&snap->journal_crc) &&
+         r->I64(&snap->solution_id) && r->I64(&snap->steps);
+}
+
 Status Service::State::WriteSnapshot(int64_t records, uint32_t crc) {
   SnapshotWriter w;
-  w.String(OptionsText());
-  w.I64(records);
-  w.I64(crc);
-  w.I64(solution_id);
-  {
-    std::lock_guard<std::mutex> lock(stats_mutex);
-    w.I64(stats.n_steps);
-  }
+  WriteHeader(records, crc, &w);
   w.Ints(se2.anchor);
   w.StepState(se2.irrr.StepState());
   w.Ints(se3.anchor);
@@ -74,10 +81,8 @@ bool Service::State::LoadSnapshot(const std::string& path,
   }
   SnapshotReader r(body);
   Snapshot& snap = *out;
-  if (!r.String(&snap.options) || !r.I64(&snap.records) || !r.I64(&snap.journal_crc) ||
-      !r.I64(&snap.solution_id) || !r.I64(&snap.steps) || !r.Ints(&snap.anchor_se2) ||
-      !r.StepState(&snap.se2) || !r.Ints(&snap.anchor_se3) || !r.StepState(&snap.se3) ||
-      !r.at_end()) {
+  if (!ReadHeader(&r, &snap) || !r.Ints(&snap.anchor_se2) || !r.StepState(&snap.se2) ||
+      !r.Ints(&snap.anchor_se3) || !r.StepState(&snap.se3) || !r.at_end()) {
     *why = path + ": its body does not decode";
     return false;
   }
@@ -123,12 +128,16 @@ int64_t Service::State::Replay(const JournalRecovery& recovery,
       continue;
     }
     input.received_utime = record.received_utime;
-    int64_t& next = journaled_next[input.header().sender];
-    next = std::max(next, input.header().seq + 1);
+    Journaled(input);
     Apply(input);
     ++applied;
   }
   return applied;
+}
+
+void Service::State::Journaled(const Input& input) {
+  int64_t& next = journaled_next[input.header().sender];
+  next = std::max(next, input.header().seq + 1);
 }
 
 void Service::SetJournal(Journal* journal) {
@@ -336,14 +345,7 @@ void Service::State::WriteEngine(const Engine<Pose>& engine, SnapshotWriter* w) 
 
 Status Service::State::WriteBase(int64_t records, uint32_t crc) {
   SnapshotWriter w;
-  w.String(OptionsText());
-  w.I64(records);
-  w.I64(crc);
-  w.I64(solution_id);
-  {
-    std::lock_guard<std::mutex> lock(stats_mutex);
-    w.I64(stats.n_steps);
-  }
+  WriteHeader(records, crc, &w);
   w.I64(next_vertex_id);
   w.I64(static_cast<int64_t>(journaled_next.size()));
   for (const auto& [sender, next] : journaled_next) {
@@ -376,7 +378,7 @@ template <class Pose>
 bool Service::State::ReadEngine(SnapshotReader* r,
                                 Engine<Pose>* engine,
                                 IrrrStepState<Pose>* steps,
-                                bool run_steps) {
+                                bool decide_again) {
   int64_t n = 0;
   if (!r->I64(&n) || n < 0 || n > daemon.limits.max_sessions) return false;
   engine->sessions.resize(static_cast<size_t>(n));
@@ -415,7 +417,7 @@ bool Service::State::ReadEngine(SnapshotReader* r,
     engine->hypothesis_of_edge.emplace(static_cast<int>(edge), h);
   }
   std::function<void()> steps_due;
-  if (run_steps) {
+  if (decide_again) {
     // Decided again from the start: each session in its own map, as it arrived.
     engine->anchor.resize(engine->sessions.size());
     for (size_t s = 0; s < engine->sessions.size(); ++s) {
@@ -465,7 +467,7 @@ bool Service::State::LoadBase(const std::string& path,
   }
   SnapshotReader r(body);
   Snapshot& snap = *steps;
-  if (!r.String(&snap.options) || !r.I64(&snap.records) || !r.I64(&snap.journal_crc)) {
+  if (!ReadHeader(&r, &snap)) {
     *why = path + ": its body does not decode";
     return false;
   }
@@ -477,10 +479,7 @@ bool Service::State::LoadBase(const std::string& path,
   }
   auto decoded = [&] {
     int64_t n = 0;
-    if (!r.I64(&snap.solution_id) || !r.I64(&snap.steps) || !r.I64(&next_vertex_id) || !r.I64(&n) ||
-        n < 0) {
-      return false;
-    }
+    if (!r.I64(&next_vertex_id) || !r.I64(&n) || n < 0) return false;
     for (int64_t k = 0; k < n; ++k) {
       std::string sender;
       int64_t next = 0;

@@ -121,8 +121,9 @@ struct Service::State {
   int64_t compact_at_bytes = 0;  // the journal size that triggers the next compaction
   int64_t base_at = 0;           // journal records the base covers (0: none)
   // Worker: each sender's next seq after the journal's records (what a base holds, and what a
-  // restart resumes the sequencer from).
+  // restart resumes the sequencer from), counted by Journaled.
   std::map<std::string, int64_t> journaled_next;
+  void Journaled(const Input& input);
   // Worker: the steps' time since the last snapshot (journal.snapshot_after_s).
   double steps_s_since_snapshot = 0.0;
 
@@ -334,6 +335,10 @@ struct Service::State {
     IrrrStepState<Pose3> se3;
   };
   std::string OptionsText() const;
+  // What a snapshot and a base begin with: the options, the journal records they cover and
+  // their CRC, the solution id and the steps run.
+  void WriteHeader(int64_t records, uint32_t crc, SnapshotWriter* w) const;
+  static bool ReadHeader(SnapshotReader* r, Snapshot* snap);
   // Worker: the state after the journal's `records` records, whose CRC is `crc`.
   Status WriteSnapshot(int64_t records, uint32_t crc);
   // The same after checking that snapshots are on and the journal holds every input applied;
@@ -388,7 +393,7 @@ struct Service::State {
   bool ReadEngine(SnapshotReader* r,
                   Engine<Pose>* engine,
                   IrrrStepState<Pose>* steps,
-                  bool run_steps);
+                  bool decide_again);
 
   std::string journal_error;     // the latest journal failure (stats_mutex)
   std::set<std::string> rivals;  // other daemons heard on our correction channel (stats_mutex)

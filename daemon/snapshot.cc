@@ -9,6 +9,8 @@
 #include <cstring>
 #include <limits>
 
+#include "daemon/journal.h"
+
 namespace irrr {
 namespace {
 
@@ -45,12 +47,6 @@ Status WriteAll(int fd, const uint8_t* data, size_t size, const std::string& pat
     size -= static_cast<size_t>(n);
   }
   return Status::Ok();
-}
-
-std::string DirectoryOf(const std::string& path) {
-  const size_t slash = path.rfind('/');
-  if (slash == std::string::npos) return ".";
-  return slash == 0 ? "/" : path.substr(0, slash);
 }
 
 }  // namespace
@@ -395,14 +391,7 @@ Status WriteSnapshotFile(const std::string& path,
     std::remove(tmp.c_str());
     return s;
   }
-  if (sync != JournalSyncPolicy::kNever) {
-    // The rename reaches the disk with the directory.
-    const int dir = open(DirectoryOf(path).c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-    if (dir >= 0) {
-      fsync(dir);
-      close(dir);
-    }
-  }
+  if (sync != JournalSyncPolicy::kNever) SyncDirectoryOf(path);
   return Status::Ok();
 }
 

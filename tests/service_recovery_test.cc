@@ -246,17 +246,24 @@ void RunWithSnapshot(const std::string& path,
   RunJournaled(path, only_when_asked, /*batched=*/false, snapshot_after, decisions, estimate);
 }
 
-// Restarts from `path` (and its snapshot, if any); returns the recovery text.
+// Restarts from `path` (and its base and snapshot, if any); returns the recovery text. With
+// `journal`, the service then takes it under `journal_options`, as irrrd does.
 std::string Restart(const std::string& path,
                     const IrrrOptions& options,
                     std::vector<HypothesisDecision>* decisions,
-                    std::vector<Service::SessionEstimate>* estimate) {
+                    std::vector<Service::SessionEstimate>* estimate,
+                    Journal* journal = nullptr,
+                    const DaemonJournal& journal_options = DaemonJournal()) {
+  DaemonOptions daemon = FastResync();
+  daemon.journal = journal_options;
   RecordingSink sink;
-  Service service(FastResync(), options, &sink);
-  Journal journal;
+  Service service(daemon, options, &sink);
+  Journal own;
+  Journal* opened = journal != nullptr ? journal : &own;
   JournalRecovery recovery;
-  REQUIRE(journal.Open(path, JournalSyncPolicy::kNever, &recovery).ok());
+  REQUIRE(opened->Open(path, JournalSyncPolicy::kNever, &recovery).ok());
   REQUIRE(service.Recover(recovery, path).ok());
+  if (journal != nullptr) service.SetJournal(journal);
   *decisions = service.Decisions();
   *estimate = service.Estimates();
   return service.CurrentStatus().recovery;
@@ -404,7 +411,9 @@ TEST_CASE(
     // The last compaction's archive is the journal as it was when its base was written.
     std::filesystem::copy_file(
         archives.back().second, path, std::filesystem::copy_options::overwrite_existing);
-    const std::string text = Restart(path, CaseOptions(), &recovered, &recovered_estimate);
+    Journal journal;
+    const std::string text =
+        Restart(path, CaseOptions(), &recovered, &recovered_estimate, &journal, options);
     CHECK_THAT(text,
                Contains("restored the base of the first " + std::to_string(tail.first_record) +
                         " inputs, then replayed 0 inputs"));
@@ -412,15 +421,6 @@ TEST_CASE(
     CHECK(recovered.size() <= decisions.size());
     // Given the journal, the service finishes the compaction: the journal starts after the base,
     // and its records are kept under the same name as before.
-    DaemonOptions daemon = FastResync();
-    daemon.journal = options;
-    RecordingSink sink;
-    Service service(daemon, CaseOptions(), &sink);
-    Journal journal;
-    JournalRecovery recovery;
-    REQUIRE(journal.Open(path, JournalSyncPolicy::kNever, &recovery).ok());
-    REQUIRE(service.Recover(recovery, path).ok());
-    service.SetJournal(&journal);
     CHECK(journal.first_record() == tail.first_record);
     CHECK(journal.size_bytes() == 20);
     int kept = 0;
